@@ -1,0 +1,40 @@
+# vcsim top-level entry points. `make run` and `make test` work on a fresh Debian 12 machine.
+JOBS ?= $(shell nproc)
+WERROR ?= $(if $(CI),ON,OFF)
+
+.PHONY: all deps build build-asan run test test-release test-asan bench format clean
+
+all: build
+
+deps:
+	@scripts/install-deps
+
+build: deps
+	cmake --preset release -DVCSIM_WERROR=$(WERROR)
+	cmake --build --preset release -j $(JOBS)
+
+build-asan: deps
+	cmake --preset asan -DVCSIM_WERROR=$(WERROR)
+	cmake --build --preset asan -j $(JOBS)
+
+# The main job. Until the scenario runner exists it is the rod validation suite.
+run: build
+	build/bin/vcsim validate
+
+test: test-release test-asan
+
+test-release: build
+	ctest --preset release -j $(JOBS)
+
+test-asan: build-asan
+	ctest --preset asan -j $(JOBS)
+
+bench: build
+	build/bin/vcsim_bench_rod --benchmark_min_time=0.2
+	build/bin/vcsim bench rod --nodes 256
+
+format:
+	clang-format -i $$(git ls-files '*.cpp' '*.h')
+
+clean:
+	rm -rf build build-debug build-asan

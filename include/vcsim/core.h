@@ -1,0 +1,60 @@
+// vcsim core: math aliases, user-input errors, state hashing and step timing.
+// SI units everywhere inside the engine (m, kg, s, N, Pa, rad).
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <chrono>
+#include <cstdint>
+#include <span>
+#include <stdexcept>
+#include <string>
+
+namespace vcsim {
+
+using Vec3 = Eigen::Vector3d;
+using Mat3 = Eigen::Matrix3d;
+using Quat = Eigen::Quaterniond;
+
+// Invalid input from outside the engine (file, message, command-line value). The message names
+// the source, the field and what was expected; the CLI prints it on one line and exits with 2.
+class InputError : public std::runtime_error {
+ public:
+  InputError(const std::string& source, const std::string& field, const std::string& expected);
+  const std::string& source() const { return source_; }
+  const std::string& field() const { return field_; }
+
+ private:
+  std::string source_;
+  std::string field_;
+};
+
+// Checks a user-supplied value once at the boundary; throws InputError naming the field.
+double require_finite(double v, const std::string& source, const std::string& field);
+double require_positive(double v, const std::string& source, const std::string& field);
+double require_nonnegative(double v, const std::string& source, const std::string& field);
+double require_in_range(double v, double lo_exclusive, double hi_inclusive,
+                        const std::string& source, const std::string& field);
+
+// 64-bit FNV-1a over raw bytes; chained so that several arrays hash into one value.
+class StateHasher {
+ public:
+  void add_bytes(const void* data, std::size_t n);
+  template <typename T>
+  void add(std::span<const T> s) {
+    add_bytes(s.data(), s.size_bytes());
+  }
+  std::uint64_t value() const { return h_; }
+
+ private:
+  std::uint64_t h_ = 1469598103934665603ull;
+};
+
+// Monotonic clock in microseconds for step profiling.
+inline double now_us() {
+  using namespace std::chrono;
+  return duration<double, std::micro>(steady_clock::now().time_since_epoch()).count();
+}
+
+}  // namespace vcsim
