@@ -1,0 +1,104 @@
+// Distance constraints |x_{j+1} - x_j| = l_j at the velocity level, evaluated at the predicted
+// positions p = x + dt v so that one iteration is one Newton step on the nonlinear chain
+// (physics.md section 4). Global: the tridiagonal system J W J^T dlambda = -C / dt solved
+// directly; local: Gauss-Seidel or Jacobi sweeps over the same constraints.
+#include "distance.h"
+
+#include <cmath>
+
+extern "C" {
+// LAPACK: factor and solve a symmetric positive definite tridiagonal system.
+void dpttrf_(const int* n, double* d, double* e, int* info);
+void dpttrs_(const int* n, const int* nrhs, const double* d, const double* e, double* b,
+             const int* ldb, int* info);
+}
+
+namespace vcsim::internal {
+
+namespace {
+// Relative regularisation of the diagonal: keeps the system definite when the chain's length
+// is fixed by two held ends (a straight chain between two held nodes has a null direction).
+constexpr double kRegularisation = 1e-10;
+
+inline double constraint_at(const Vec3& xa, const Vec3& va, const Vec3& xb, const Vec3& vb,
+                            double dt, double rest, Vec3& dir) {
+  const Vec3 e = (xb + dt * vb) - (xa + dt * va);
+  const double len = e.norm();
+  dir = e / len;
+  return len - rest;
+}
+}  // namespace
+
+bool distance_global(const RodModel& md, double dt, std::span<const Vec3> x, std::span<Vec3> v,
+                     RodWorkspace& ws, DistanceImpulses& out) {
+  const int m = md.m;
+  const double* w = md.inv_mass.data();
+  for (int i = 0; i < md.n; ++i) ws.pred[i] = x[i] + dt * v[i];
+  const double inv_dt = 1.0 / dt;
+  // C_j at the predicted positions, n_j, and the diagonal A_jj = w_j + w_{j+1}.
+  for (int j = 0; j < m; ++j) {
+    const Vec3 e = ws.pred[j + 1] - ws.pred[j];
+    const double len = std::sqrt(e.squaredNorm());
+    ws.dir[j] = e * (1.0 / len);
+    ws.rhs[j] = (md.rest_length[j] - len) * inv_dt;
+    double d = w[j] + w[j + 1];
+    if (d == 0.0) {  // both ends held: the constraint cannot act
+      d = 1.0;
+      ws.rhs[j] = 0.0;
+    }
+    ws.diag[j] = d * (1.0 + kRegularisation);
+  }
+  // A_{j,j+1} = -w_{j+1} n_j . n_{j+1}.
+  for (int j = 0; j + 1 < m; ++j) ws.offdiag[j] = -w[j + 1] * ws.dir[j].dot(ws.dir[j + 1]);
+  int info = 0;
+  const int nrhs = 1;
+  dpttrf_(&m, ws.diag.data(), ws.offdiag.data(), &info);
+  if (info != 0) return false;
+  dpttrs_(&m, &nrhs, ws.diag.data(), ws.offdiag.data(), ws.rhs.data(), &m, &info);
+  if (info != 0) return false;
+  // dv = W J^T lambda: node k gets w_k (n_{k-1} lambda_{k-1} - n_k lambda_k).
+  for (int j = 0; j < m; ++j) {
+    const Vec3 imp = ws.rhs[j] * ws.dir[j];
+    v[j] -= w[j] * imp;
+    v[j + 1] += w[j + 1] * imp;
+  }
+  out.first += -ws.rhs[0] * ws.dir[0];
+  out.last += ws.rhs[m - 1] * ws.dir[m - 1];
+  return true;
+}
+
+void distance_local_gs(const RodModel& md, double dt, std::span<const Vec3> x, std::span<Vec3> v,
+                       RodWorkspace& ws, DistanceImpulses& out) {
+  const double* w = md.inv_mass.data();
+  for (int j = 0; j < md.m; ++j) {
+    const double ws_sum = w[j] + w[j + 1];
+    if (ws_sum == 0.0) continue;
+    Vec3& n = ws.dir[j];
+    const double c = constraint_at(x[j], v[j], x[j + 1], v[j + 1], dt, md.rest_length[j], n);
+    const double lambda = -c / (dt * ws_sum);
+    v[j] -= w[j] * lambda * n;
+    v[j + 1] += w[j + 1] * lambda * n;
+    if (j == 0) out.first += -lambda * n;
+    if (j == md.m - 1) out.last += lambda * n;
+  }
+}
+
+void distance_local_jacobi(const RodModel& md, double dt, std::span<const Vec3> x,
+                           std::span<Vec3> v, RodWorkspace& ws, DistanceImpulses& out) {
+  const double* w = md.inv_mass.data();
+  for (int i = 0; i < md.n; ++i) ws.dv[i].setZero();
+  for (int j = 0; j < md.m; ++j) {
+    const double ws_sum = w[j] + w[j + 1];
+    if (ws_sum == 0.0) continue;
+    Vec3& n = ws.dir[j];
+    const double c = constraint_at(x[j], v[j], x[j + 1], v[j + 1], dt, md.rest_length[j], n);
+    const double lambda = -c / (dt * ws_sum);
+    ws.dv[j] -= w[j] * lambda * n;
+    ws.dv[j + 1] += w[j + 1] * lambda * n;
+    if (j == 0) out.first += -lambda * n;
+    if (j == md.m - 1) out.last += lambda * n;
+  }
+  for (int i = 0; i < md.n; ++i) v[i] += ws.dv[i];
+}
+
+}  // namespace vcsim::internal

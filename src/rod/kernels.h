@@ -1,0 +1,84 @@
+// Stateless rod kernels. Equation numbers refer to docs/physics.md, where each is derived.
+#pragma once
+
+#include <cmath>
+
+#include "vcsim/core.h"
+
+namespace vcsim::internal {
+
+// Relative rotation r = conj(qa) qb with the double cover resolved (r.w >= 0), so that the
+// rod's energy does not see the sign of a quaternion (physics.md eq. 2).
+inline Quat relative_rotation(const Quat& qa, const Quat& qb) {
+  Quat r = qa.conjugate() * qb;
+  if (r.w() < 0.0) r.coeffs() = -r.coeffs();
+  return r;
+}
+
+// Bending and twisting at one vertex (physics.md eqs. 2-5).
+// E = (l/2) sum_k K_k (Omega_k - Omega0_k)^2 with Omega = (2/l) Im(r) in frame a.
+// Adds the world torques on frame a and frame b; returns the energy.
+// R_a is qa as a rotation matrix (passed in so that each frame is converted once per step).
+inline double bend_twist(const Quat& qa, const Mat3& R_a, const Quat& qb, double l, const Vec3& K,
+                         const Vec3& omega0, Vec3& tau_a, Vec3& tau_b) {
+  const Quat r = relative_rotation(qa, qb);
+  const Vec3 rv = r.vec();
+  const Vec3 d_omega = (2.0 / l) * rv - omega0;
+  const Vec3 k_dw = K.cwiseProduct(d_omega);
+  // g = (r_w I + [r_v]x) K dOmega: the energy gradient w.r.t. a rotation of b in a's coordinates.
+  const Vec3 g = r.w() * k_dw + rv.cross(k_dw);
+  const Vec3 g_world = R_a * g;
+  tau_a += g_world;
+  tau_b -= g_world;
+  return 0.5 * l * d_omega.dot(k_dw);
+}
+
+// Parallel constraint (physics.md eq. 6): E = (K_p l / 2) |P (e / l)|^2 with P = I - d3 d3^T,
+// e = xb - xa: a shear penalty on the part of the edge off d3 (stretch is left to the distance
+// constraints or the stretch penalty). Forces pull the edge toward d3; the torque
+// K_p (u . d3) d3 x e turns d3 toward the edge.
+inline double parallel_penalty(const Vec3& xa, const Vec3& xb, const Vec3& d3, double l, double kp,
+                               Vec3& fa, Vec3& fb, Vec3& tau) {
+  const Vec3 e = xb - xa;
+  const Vec3 u = e / l;
+  const double axial = u.dot(d3);
+  const Vec3 perp = u - axial * d3;
+  fa += kp * perp;
+  fb -= kp * perp;
+  tau += (kp * axial) * d3.cross(e);
+  return 0.5 * kp * l * perp.squaredNorm();
+}
+
+// Extensible stretch of the original CoRdE (physics.md eq. 7): E = (EA / 2 l) (|e| - l)^2.
+inline double stretch_penalty(const Vec3& xa, const Vec3& xb, double l, double ea, Vec3& fa,
+                              Vec3& fb) {
+  const Vec3 e = xb - xa;
+  const double len = e.norm();
+  const double ext = len - l;
+  const Vec3 f = (ea / l) * ext * (e / len);
+  fa += f;
+  fb -= f;
+  return 0.5 * ea / l * ext * ext;
+}
+
+// Body-frame angular acceleration from Euler's equations with a diagonal inertia I:
+// I dw/dt = tau_b - w x (I w)  (physics.md eq. 9).
+inline Vec3 euler_rhs(const Vec3& w, const Vec3& inertia, const Vec3& inv_inertia,
+                      const Vec3& tau_body) {
+  return inv_inertia.cwiseProduct(tau_body - w.cross(inertia.cwiseProduct(w)));
+}
+
+// q <- normalise(q + dt/2 q (0, w)), the semi-implicit frame update (physics.md eq. 10),
+// written out: the product with a pure quaternion needs 12 multiplications, not 16.
+inline Quat integrate_rotation(const Quat& q, const Vec3& w, double dt) {
+  const double h = 0.5 * dt;
+  const double qw = q.w(), qx = q.x(), qy = q.y(), qz = q.z();
+  const double nw = qw - h * (qx * w.x() + qy * w.y() + qz * w.z());
+  const double nx = qx + h * (qw * w.x() + qy * w.z() - qz * w.y());
+  const double ny = qy + h * (qw * w.y() + qz * w.x() - qx * w.z());
+  const double nz = qz + h * (qw * w.z() + qx * w.y() - qy * w.x());
+  const double s = 1.0 / std::sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
+  return Quat(nw * s, nx * s, ny * s, nz * s);
+}
+
+}  // namespace vcsim::internal

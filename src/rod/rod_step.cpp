@@ -1,0 +1,219 @@
+// The rod step: forces, semi-implicit velocity integration, constraint iterations, position
+// integration (physics.md section 5). Reads the model, writes the state; allocates nothing.
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "distance.h"
+#include "kernels.h"
+#include "vcsim/rod.h"
+
+namespace vcsim {
+
+using namespace internal;
+
+const char* to_string(DistanceMethod m) {
+  switch (m) {
+    case DistanceMethod::kGlobal:
+      return "global";
+    case DistanceMethod::kLocalGS:
+      return "local-gs";
+    case DistanceMethod::kLocalJacobi:
+      return "local-jacobi";
+    case DistanceMethod::kPenalty:
+      return "penalty";
+  }
+  return "?";
+}
+
+DistanceMethod distance_method_from_string(const std::string& s, const std::string& source) {
+  for (auto m : {DistanceMethod::kGlobal, DistanceMethod::kLocalGS, DistanceMethod::kLocalJacobi,
+                 DistanceMethod::kPenalty}) {
+    if (s == to_string(m)) return m;
+  }
+  throw InputError(source, "method",
+                   "expected one of global, local-gs, local-jacobi, penalty, got '" + s + "'");
+}
+
+void RodSettings::validate(const std::string& source) const {
+  require_positive(dt, source, "dt");
+  for (int k = 0; k < 3; ++k) require_finite(gravity[k], source, "gravity");
+  if (iterations < 1 || iterations > 10000) {
+    throw InputError(source, "iterations",
+                     "expected an integer in [1, 10000], got " + std::to_string(iterations));
+  }
+  require_nonnegative(drag, source, "drag");
+  require_nonnegative(angular_drag, source, "angular_drag");
+  require_nonnegative(internal_damping, source, "internal_damping");
+  require_positive(penalty_modulus_scale, source, "penalty_modulus_scale");
+}
+
+namespace {
+
+void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, RodWorkspace& ws) {
+  const int n = md.n, m = md.m;
+  // Each frame as a matrix once: every rotation below reuses it.
+  for (int j = 0; j < m; ++j) ws.rot[j] = st.q[j].toRotationMatrix();
+  // Gravity, applied loads and mass-proportional drag on the nodes.
+  for (int i = 0; i < n; ++i) {
+    ws.force[i] = md.node_mass[i] * (s.gravity - s.drag * st.v[i]) + st.f_ext[i];
+  }
+  if (s.angular_drag > 0.0) {
+    for (int j = 0; j < m; ++j) {
+      ws.torque[j] =
+          st.tau_ext[j] - s.angular_drag * (ws.rot[j] * md.inertia[j].cwiseProduct(st.omega[j]));
+    }
+  } else {
+    for (int j = 0; j < m; ++j) ws.torque[j] = st.tau_ext[j];
+  }
+  // Bending and twisting at the interior vertices.
+  for (int v = 1; v < m; ++v) {
+    bend_twist(st.q[v - 1], ws.rot[v - 1], st.q[v], md.vertex_length[v], md.vertex_stiffness[v],
+               md.rest_darboux[v], ws.torque[v - 1], ws.torque[v]);
+  }
+  // Clamps: half vertices between the clamp frames and the end frames.
+  st.base_torque.setZero();
+  st.tip_torque.setZero();
+  if (md.vertex_active[0]) {
+    bend_twist(st.base_frame, st.base_frame.toRotationMatrix(), st.q[0], md.vertex_length[0],
+               md.vertex_stiffness[0], md.rest_darboux[0], st.base_torque, ws.torque[0]);
+  }
+  if (md.vertex_active[m]) {
+    bend_twist(st.q[m - 1], ws.rot[m - 1], st.tip_frame, md.vertex_length[m],
+               md.vertex_stiffness[m], md.rest_darboux[m], ws.torque[m - 1], st.tip_torque);
+  }
+  // Parallel constraint penalty: edges along their frames' d3.
+  for (int j = 0; j < m; ++j) {
+    parallel_penalty(st.x[j], st.x[j + 1], ws.rot[j].col(2), md.rest_length[j], md.kp[j],
+                     ws.force[j], ws.force[j + 1], ws.torque[j]);
+  }
+  // Stiffness-proportional internal damping (Rayleigh beta): resists the rates of bending,
+  // twisting and of the parallel-constraint strain, never rigid motion.
+  if (s.internal_damping > 0.0) {
+    const double beta = s.internal_damping;
+    for (int v = 1; v < m; ++v) {
+      const Vec3 rel_w = ws.rot[v] * st.omega[v] - ws.rot[v - 1] * st.omega[v - 1];
+      const Vec3 rel_a = ws.rot[v - 1].transpose() * rel_w;
+      const Vec3 t = ws.rot[v - 1] *
+                     ((beta / md.vertex_length[v]) * md.vertex_stiffness[v].cwiseProduct(rel_a));
+      ws.torque[v - 1] += t;
+      ws.torque[v] -= t;
+    }
+    for (int j = 0; j < m; ++j) {
+      const Vec3 d3 = ws.rot[j].col(2);
+      const Vec3 wd3 = (ws.rot[j] * st.omega[j]).cross(d3);
+      Vec3 rate = (st.v[j + 1] - st.v[j]) / md.rest_length[j] - wd3;
+      rate -= rate.dot(d3) * d3;  // shear rate only, like the penalty itself
+      const Vec3 f = beta * md.kp[j] * rate;
+      ws.force[j] += f;
+      ws.force[j + 1] -= f;
+      ws.torque[j] += (beta * md.kp[j] * md.rest_length[j]) * d3.cross(rate);
+    }
+  }
+  if (s.distance == DistanceMethod::kPenalty) {
+    for (int j = 0; j < m; ++j) {
+      stretch_penalty(st.x[j], st.x[j + 1], md.rest_length[j],
+                      s.penalty_modulus_scale * md.axial_stiffness[j], ws.force[j],
+                      ws.force[j + 1]);
+    }
+  }
+}
+
+}  // namespace
+
+void rod_step(const RodModel& md, const RodSettings& s, RodState& st, RodWorkspace& ws,
+              RodProfile* profile) {
+  const double dt = s.dt;
+  const double t0 = profile ? now_us() : 0.0;
+
+  // 1. forces and torques
+  accumulate_forces(md, s, st, ws);
+  const double t1 = profile ? now_us() : 0.0;
+
+  // 2. semi-implicit integration of velocities (held nodes have zero inverse mass)
+  for (int i = 0; i < md.n; ++i) st.v[i] += (dt * md.inv_mass[i]) * ws.force[i];
+  for (int j = 0; j < md.m; ++j) {
+    const Vec3 tau_body = ws.rot[j].transpose() * ws.torque[j];
+    st.omega[j] += dt * euler_rhs(st.omega[j], md.inertia[j], md.inv_inertia[j], tau_body);
+  }
+  const double t2 = profile ? now_us() : 0.0;
+
+  // 3. constraint iterations (later: concentric coupling, contacts and the drive follow the
+  //    distance solve inside each iteration)
+  DistanceImpulses imp;
+  if (s.distance != DistanceMethod::kPenalty) {
+    for (int it = 0; it < s.iterations; ++it) {
+      switch (s.distance) {
+        case DistanceMethod::kGlobal:
+          if (!distance_global(md, dt, st.x, st.v, ws, imp)) {
+            distance_local_gs(md, dt, st.x, st.v, ws, imp);
+          }
+          break;
+        case DistanceMethod::kLocalGS:
+          distance_local_gs(md, dt, st.x, st.v, ws, imp);
+          break;
+        case DistanceMethod::kLocalJacobi:
+          distance_local_jacobi(md, dt, st.x, st.v, ws, imp);
+          break;
+        case DistanceMethod::kPenalty:
+          break;
+      }
+    }
+  }
+  const double t3 = profile ? now_us() : 0.0;
+
+  // 4. positions and frames
+  for (int i = 0; i < md.n; ++i) st.x[i] += dt * st.v[i];
+  for (int j = 0; j < md.m; ++j) st.q[j] = integrate_rotation(st.q[j], st.omega[j], dt);
+  st.time += dt;
+  ++st.steps;
+
+  // What the supports feel: the held node's force balance (internal forces plus constraint
+  // impulses over dt), in the rod-on-support sense.
+  st.base_force = md.inv_mass[0] == 0.0 ? Vec3(ws.force[0] + imp.first / dt) : Vec3::Zero();
+  st.tip_force =
+      md.inv_mass[md.n - 1] == 0.0 ? Vec3(ws.force[md.n - 1] + imp.last / dt) : Vec3::Zero();
+
+  if (profile) {
+    const double t4 = now_us();
+    profile->forces = t1 - t0;
+    profile->integrate_velocities = t2 - t1;
+    profile->constraints = t3 - t2;
+    profile->integrate_positions = t4 - t3;
+    profile->total = t4 - t0;
+  }
+}
+
+double estimate_stable_dt(const RodModel& md, const RodSettings& s) {
+  // Gershgorin-style bound on the highest frequency of each node and frame (physics.md 5.3).
+  double w2max = 0.0;
+  for (int i = 0; i < md.n; ++i) {
+    if (md.inv_mass[i] == 0.0) continue;
+    double k = 0.0;
+    for (int j : {i - 1, i}) {
+      if (j < 0 || j >= md.m) continue;
+      k += md.kp[j] / md.rest_length[j];
+      if (s.distance == DistanceMethod::kPenalty) {
+        k += s.penalty_modulus_scale * md.axial_stiffness[j] / md.rest_length[j];
+      }
+    }
+    w2max = std::max(w2max, 2.0 * k * md.inv_mass[i]);
+  }
+  for (int j = 0; j < md.m; ++j) {
+    // The K_p torque is perpendicular to d3: it loads the bending axes only.
+    Vec3 k(md.kp[j] * md.rest_length[j], md.kp[j] * md.rest_length[j], 0.0);
+    for (int v : {j, j + 1}) {
+      if (md.vertex_active[v]) k += md.vertex_stiffness[v] / md.vertex_length[v];
+    }
+    w2max = std::max(w2max, 2.0 * k.cwiseProduct(md.inv_inertia[j]).maxCoeff());
+  }
+  double dt = 1.0 / std::sqrt(w2max);  // half of the symplectic-Euler limit 2 / omega
+  // Explicit damping is stable for c dt < 2; keep a margin. Stiffness-proportional damping
+  // multiplies the top frequency: beta w^2 dt < 1 as well.
+  if (s.drag > 0) dt = std::min(dt, 1.0 / s.drag);
+  if (s.angular_drag > 0) dt = std::min(dt, 1.0 / s.angular_drag);
+  if (s.internal_damping > 0) dt = std::min(dt, 1.0 / (s.internal_damping * w2max));
+  return dt;
+}
+
+}  // namespace vcsim
