@@ -80,13 +80,16 @@ int run(int argc, char** argv) {
   val->add_option("--iterations", vo.iterations, "Constraint iterations per step");
   val->add_option("--method", method,
                   "Distance constraints: global, local-gs, local-jacobi, penalty");
-  val->add_option("--load", vo.load, "elastica-tip: lambda = P L^2 / EI; distributed: q L^3 / EI");
-  val->add_option("--ratio", vo.ratio, "buckling: P / P_cr");
-  val->add_option("--angle-deg", vo.angle_deg, "torsion: end rotation (deg)");
-  val->add_option("--pull", vo.pull, "stretch: tip force over the rod's weight");
+  auto* load_opt = val->add_option("--load", vo.load,
+                                   "elastica-tip: lambda = P L^2 / EI; distributed: q L^3 / EI");
+  auto* ratio_opt = val->add_option("--ratio", vo.ratio, "buckling: P / P_cr");
+  auto* angle_opt = val->add_option("--angle-deg", vo.angle_deg, "torsion: end rotation (deg)");
+  auto* pull_opt = val->add_option("--pull", vo.pull, "stretch: tip force over the rod's weight");
   val->add_option("--mode", vo.mode, "frequency: mode number (default 1 and 2)");
   val->add_option("--tip-radius-mm", tip_radius_mm, "shaped-tip: arc radius (mm)");
   val->add_option("--tip-angle-deg", vo.j_angle_deg, "shaped-tip: arc angle (deg)");
+  val->add_option("--tip-ratio", vo.tip_modulus_ratio,
+                  "shaped-tip: soft tip modulus ratio alpha = E_tip / E_shaft, in (0, 1]");
 
   // bench
   auto* bench = app.add_subcommand("bench", "Benchmarks");
@@ -106,11 +109,23 @@ int run(int argc, char** argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     if (e.get_exit_code() == 0) return app.exit(e);
-    std::cerr << "vcsim: error: " << e.what() << "\n";
+    const std::string first = argc > 1 ? argv[1] : "";
+    if (!first.empty() && first[0] != '-' && first != "validate" && first != "bench" &&
+        first != "info") {
+      std::cerr << "vcsim: error: command: expected validate, bench or info, got '" << argv[1]
+                << "'\n";
+    } else {
+      std::cerr << "vcsim: error: " << e.what() << "\n";
+    }
     return 2;
   }
 
   if (*val) {
+    // NaN means "the case's default set" inside; a NaN typed by the user is an error.
+    for (auto [opt, value] : {std::pair{load_opt, vo.load}, std::pair{ratio_opt, vo.ratio},
+                              std::pair{angle_opt, vo.angle_deg}, std::pair{pull_opt, vo.pull}}) {
+      if (opt->count() > 0) require_finite(value, "validate", opt->get_name());
+    }
     vo.length = length_mm * 1e-3;
     vo.outer_radius = radius_mm * 1e-3;
     vo.youngs_modulus = youngs_gpa * 1e9;

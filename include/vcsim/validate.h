@@ -30,6 +30,7 @@ struct ValidationOptions {
   int mode = 0;                                                 // frequency mode (0: 1 and 2)
   double j_radius = 3.0e-3;                                     // (m) shaped-tip radius
   double j_angle_deg = 180.0;                                   // shaped-tip arc
+  double tip_modulus_ratio = 0.5;  // shaped-tip: soft tip alpha over twice the arc length
 
   void validate(const std::string& source) const;
 };

@@ -1,0 +1,63 @@
+// A warm rod step allocates nothing on the heap (counted by replacing the global operator new).
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cstdlib>
+#include <new>
+
+#include "vcsim/rod.h"
+
+namespace {
+std::atomic<long> g_allocations{0};
+}
+
+#ifndef VCSIM_SANITIZE
+void* operator new(std::size_t n) {
+  g_allocations.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept {
+  std::free(p);
+}
+void operator delete(void* p, std::size_t) noexcept {
+  std::free(p);
+}
+#endif
+
+using namespace vcsim;
+
+TEST(RodNoAlloc, WarmStepAllocatesNothing) {
+#ifdef VCSIM_SANITIZE
+  GTEST_SKIP() << "the sanitizer runtime owns operator new";
+#else
+  for (auto method : {DistanceMethod::kGlobal, DistanceMethod::kLocalGS,
+                      DistanceMethod::kLocalJacobi, DistanceMethod::kPenalty}) {
+    RodDef d;
+    d.segments = 255;
+    d.tip_shape = {TipSection::arc(3e-3, 3.0)};
+    d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), Vec3::UnitX());
+    const RodModel md = build_rod(d);
+    RodState st = make_state(md, d);
+    RodWorkspace ws;
+    ws.resize(md);
+    RodSettings s;
+    s.gravity = Vec3(0, 0, -9.81);
+    s.distance = method;
+    s.iterations = 3;
+    s.internal_damping = 1e-7;
+    s.drag = 1.0;
+    s.angular_drag = 1.0;
+    s.dt = estimate_stable_dt(md, s);
+    RodProfile prof;
+    rod_step(md, s, st, ws, &prof);  // warm
+    const long before = g_allocations.load();
+    for (int k = 0; k < 200; ++k) rod_step(md, s, st, ws, &prof);
+    EXPECT_EQ(g_allocations.load() - before, 0) << to_string(method);
+    // The counter works: a vector allocates.
+    std::vector<double>* probe = new std::vector<double>(10);
+    EXPECT_GT(g_allocations.load() - before, 0);
+    delete probe;
+  }
+#endif
+}
