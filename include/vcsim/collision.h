@@ -1,0 +1,205 @@
+// vcsim collision: the vessel lumen as a triangle mesh, a flat AABB tree over its triangles
+// (built once, refitted when the wall moves) and sphere queries for instrument nodes.
+// SI units: lengths in metres. Every triangle normal faces INTO the lumen (the vessel interior),
+// so a contact normal is the direction in which to push an instrument node back inside.
+#pragma once
+
+#include "vcsim/core.h"
+
+#include <array>
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+namespace vcsim {
+
+// ---------------------------------------------------------------------------------------------
+// Mesh
+
+// Indexed triangle mesh. The winding of a triangle (a, b, c) defines its normal
+// n = (b - a) x (c - a) / |...|, which after check_and_repair faces into the lumen.
+struct TriangleMesh {
+  std::vector<Vec3> vertices;                 // (nv) positions, m
+  std::vector<std::array<int, 3>> triangles;  // (nt) vertex indices
+  std::vector<Vec3> normals;                  // (nt) unit normals into the lumen
+
+  int num_vertices() const { return static_cast<int>(vertices.size()); }
+  int num_triangles() const { return static_cast<int>(triangles.size()); }
+
+  // Recomputes `normals` from the winding; call after the vertices move.
+  // A zero-area triangle gets a zero normal.
+  void recompute_normals();
+};
+
+// What check_and_repair found and changed.
+struct MeshReport {
+  int vertices = 0;                 // after repair
+  int triangles = 0;                // after repair
+  int degenerate_removed = 0;       // zero-area or repeated-index triangles dropped
+  int duplicates_removed = 0;       // triangles on the same three vertices as an earlier one
+  int unused_vertices_removed = 0;  // vertices no triangle refers to (indices compacted)
+  int components = 0;               // edge-connected components
+  int boundary_edges = 0;           // edges used by one triangle (open vessel ends)
+  std::vector<std::vector<int>> boundary_loops;  // each open end as an ordered vertex loop
+  int flipped_for_consistency = 0;  // triangles flipped so neighbours agree across shared edges
+  int flipped_for_lumen = 0;        // triangles flipped so that normals face the lumen
+  std::vector<double> component_volumes;  // (components) lumen volume, m^3, open ends capped
+
+  // One line per finding, for logs and the CLI.
+  std::string summary() const;
+};
+
+// Checks the mesh and repairs what can be repaired, in this order:
+//  1. indices in range and coordinates finite (else InputError);
+//  2. degenerate triangles (repeated index, zero area) and duplicates (same three vertices)
+//     removed, unused vertices dropped;
+//  3. non-manifold edges (shared by more than two triangles): InputError;
+//  4. orientation made consistent by flood fill across shared edges; a non-orientable
+//     component (Moebius-like) is refused with InputError;
+//  5. each component oriented so that its normals face the lumen: the signed volume of the
+//     component closed with fan caps over its boundary loops must be positive inside;
+//  6. normals recomputed.
+// Open boundary loops are expected at vessel ends and only reported. `source` (a file path or
+// a description) names the mesh in error messages.
+MeshReport check_and_repair(TriangleMesh& mesh, const std::string& source = "mesh");
+
+// ---------------------------------------------------------------------------------------------
+// Geometry kernels
+
+// Which feature of a triangle holds the closest point (Ericson, RTCD 5.1.5).
+enum class TriangleRegion : std::uint8_t {
+  kFace,
+  kEdgeAB,
+  kEdgeBC,
+  kEdgeCA,
+  kVertexA,
+  kVertexB,
+  kVertexC
+};
+
+struct ClosestPoint {
+  Vec3 point;
+  TriangleRegion region;
+};
+
+// Closest point to p on triangle (a, b, c) by Voronoi regions (Ericson, RTCD 5.1.5).
+ClosestPoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c);
+
+// ---------------------------------------------------------------------------------------------
+// AABB tree
+
+struct Aabb {
+  Vec3 lo = Vec3::Constant(0.0);
+  Vec3 hi = Vec3::Constant(0.0);
+  bool contains(const Aabb& o) const {
+    return (lo.array() <= o.lo.array()).all() && (o.hi.array() <= hi.array()).all();
+  }
+};
+
+// One node of the flat tree. Children are allocated in pairs after their parent, so a child's
+// index is always larger than its parent's (refit walks the array backwards).
+struct AabbNode {
+  Aabb box;
+  int first = 0;  // leaf: first slot in AabbTree::triangle_order(); internal: left child index
+  int count = 0;  // leaf: number of triangles (> 0); internal: 0 (right child = left + 1)
+  bool is_leaf() const { return count > 0; }
+};
+
+struct AabbTreeSettings {
+  int max_leaf_size = 4;  // triangles per leaf at most (a leaf may stop earlier by SAH)
+  int bins = 16;          // SAH bins per axis (Wald 2007)
+  double margin = 1e-4;   // m, "fat" margin added to every leaf box at build and refit
+};
+
+// Contact of one sphere (an instrument node) with the lumen wall.
+struct SphereContact {
+  bool touching = false;
+  bool centre_outside = false;  // the centre is behind the wall (outside the lumen)
+  double depth = 0.0;           // m: radius - distance inside; radius + distance behind the wall
+  double distance = 0.0;        // m: distance from the centre to the closest wall point
+  Vec3 normal = Vec3::Zero();   // unit, into the lumen: push direction (zero if not touching)
+  Vec3 point = Vec3::Zero();    // closest wall point, m
+  int triangle = -1;            // triangle holding `point`
+  int num_touching = 0;         // triangles overlapping the sphere
+};
+
+struct SphereQuerySettings {
+  // m: a centre up to radius + escape_distance behind the wall still gives a contact (deeper
+  // escapes are taken as "not near the wall"). 0 detects whatever the sphere overlaps.
+  double escape_distance = 0.0;
+};
+
+class AabbTree {
+ public:
+  AabbTree() = default;
+
+  // Builds the topology with a binned SAH (Wald 2007) and fits the boxes. The mesh must have
+  // passed check_and_repair (normals set).
+  void build(const TriangleMesh& mesh, const AabbTreeSettings& settings = {});
+
+  // Recomputes every box bottom-up in place after the vertices moved (same triangles, same
+  // topology); leaf boxes get the fat margin. No allocation.
+  void refit(const TriangleMesh& mesh);
+
+  // Contact of one sphere (centre, radius in m) with the mesh the tree was built on.
+  SphereContact query_sphere(const TriangleMesh& mesh, const Vec3& centre, double radius,
+                             const SphereQuerySettings& settings = {}) const;
+
+  // Batch query for N spheres into preallocated outputs: out[i] for centres[i], radii[i]
+  // (radii may hold one value for all). Allocates nothing.
+  void query_spheres(const TriangleMesh& mesh, std::span<const Vec3> centres,
+                     std::span<const double> radii, std::span<SphereContact> out,
+                     const SphereQuerySettings& settings = {}) const;
+
+  const std::vector<AabbNode>& nodes() const { return nodes_; }
+  const std::vector<int>& triangle_order() const { return order_; }  // leaf slots -> triangle
+  int depth() const { return depth_; }
+  bool empty() const { return nodes_.empty(); }
+  const AabbTreeSettings& settings() const { return settings_; }
+
+  // Traversal uses a fixed stack of this size; the build keeps the depth below it.
+  static constexpr int kMaxDepth = 96;
+
+ private:
+  std::vector<AabbNode> nodes_;
+  std::vector<int> order_;
+  int depth_ = 0;
+  int num_triangles_ = 0;
+  AabbTreeSettings settings_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Procedural tubes (vessel phantoms for tests and experiments)
+
+struct TubeSpec {
+  std::vector<Vec3> centreline;  // polyline, m, at least 2 distinct points
+  double radius = 2e-3;          // m
+  int sides = 32;                // vertices around each ring (>= 3)
+  int rings = 64;                // cross-sections along the centreline (>= 2)
+  bool cap_end = false;          // close the far end with a flat fan cap (a dead-end tube)
+};
+
+// Sweeps a circle along the centreline with rotation-minimising frames; rings are evenly spaced
+// by arc length. Normals face the lumen. Throws InputError for a bad spec.
+TriangleMesh make_tube(const TubeSpec& spec);
+
+// Centreline: straight1 along +z from the origin, then an arc of bend_radius through
+// bend_angle (rad) turning toward +x, then straight2. Points at most max_segment apart.
+std::vector<Vec3> bent_centreline(double straight1, double bend_radius, double bend_angle,
+                                  double straight2, double max_segment = 5e-4);
+
+struct BentTubeSpec {
+  double straight1 = 20e-3;                // m
+  double bend_radius = 15e-3;              // m, of the centreline arc
+  double bend_angle = 1.5707963267948966;  // rad
+  double straight2 = 20e-3;                // m
+  double radius = 2e-3;                    // m, lumen radius
+  int sides = 32;
+  double ring_spacing = 1e-3;  // m, along the centreline
+  bool cap_end = false;
+};
+
+TriangleMesh make_bent_tube(const BentTubeSpec& spec);
+
+}  // namespace vcsim

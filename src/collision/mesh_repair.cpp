@@ -1,0 +1,311 @@
+// Mesh checks and repair: degenerate triangles, manifoldness, consistent orientation and
+// lumen-facing normals. Runs once when a mesh enters the engine (file import or generator).
+#include "vcsim/collision.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <deque>
+#include <sstream>
+
+namespace vcsim {
+
+namespace {
+
+std::string str(const Vec3& p) {
+  std::ostringstream os;
+  os << "(" << p.x() << ", " << p.y() << ", " << p.z() << ")";
+  return os.str();
+}
+
+// One triangle side, keyed by its undirected edge so that sorting groups the sides of an edge.
+struct Side {
+  std::uint64_t key;  // (min vertex << 32) | max vertex
+  int tri;
+  int slot;  // edge slot k: from triangles[tri][k] to triangles[tri][(k + 1) % 3]
+};
+
+std::uint64_t edge_key(int u, int v) {
+  const auto lo = static_cast<std::uint64_t>(std::min(u, v));
+  const auto hi = static_cast<std::uint64_t>(std::max(u, v));
+  return (lo << 32) | hi;
+}
+
+void flip(std::array<int, 3>& t) {
+  std::swap(t[1], t[2]);
+}
+
+// Drops repeated-index and zero-area triangles. Zero area is judged relative to the longest
+// edge, so that the test does not depend on the unit or size of the mesh.
+int remove_degenerate(TriangleMesh& m) {
+  const auto before = m.triangles.size();
+  std::erase_if(m.triangles, [&](const std::array<int, 3>& t) {
+    if (t[0] == t[1] || t[1] == t[2] || t[2] == t[0]) return true;
+    const Vec3& a = m.vertices[t[0]];
+    const Vec3& b = m.vertices[t[1]];
+    const Vec3& c = m.vertices[t[2]];
+    const double e2 =
+        std::max({(b - a).squaredNorm(), (c - b).squaredNorm(), (a - c).squaredNorm()});
+    return (b - a).cross(c - a).norm() <= 1e-12 * e2;
+  });
+  return static_cast<int>(before - m.triangles.size());
+}
+
+// Drops repeated triangles (same three vertices, either winding): a copy would make its edges
+// non-manifold, and a copy with the other winding a zero-volume pocket. Keeps the first.
+int remove_duplicates(TriangleMesh& m) {
+  std::vector<std::pair<std::array<int, 3>, int>> keyed(m.triangles.size());
+  for (std::size_t t = 0; t < m.triangles.size(); ++t) {
+    auto k = m.triangles[t];
+    std::sort(k.begin(), k.end());
+    keyed[t] = {k, static_cast<int>(t)};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  std::vector<char> drop(m.triangles.size(), 0);
+  for (std::size_t i = 1; i < keyed.size(); ++i)
+    if (keyed[i].first == keyed[i - 1].first) drop[keyed[i].second] = 1;
+  std::size_t next = 0;
+  for (std::size_t t = 0; t < m.triangles.size(); ++t)
+    if (!drop[t]) m.triangles[next++] = m.triangles[t];
+  const auto removed = static_cast<int>(m.triangles.size() - next);
+  m.triangles.resize(next);
+  return removed;
+}
+
+int remove_unused_vertices(TriangleMesh& m) {
+  std::vector<int> remap(m.vertices.size(), -1);
+  for (const auto& t : m.triangles)
+    for (int v : t) remap[v] = 0;
+  int next = 0;
+  for (std::size_t v = 0; v < remap.size(); ++v) {
+    if (remap[v] < 0) continue;
+    remap[v] = next;
+    m.vertices[next++] = m.vertices[v];
+  }
+  const int removed = static_cast<int>(m.vertices.size()) - next;
+  m.vertices.resize(next);
+  for (auto& t : m.triangles)
+    for (int& v : t) v = remap[v];
+  return removed;
+}
+
+}  // namespace
+
+std::string MeshReport::summary() const {
+  std::ostringstream os;
+  os << vertices << " vertices, " << triangles << " triangles, " << components << " component(s)\n";
+  os << boundary_loops.size() << " open boundary loop(s) (" << boundary_edges << " edges)\n";
+  if (degenerate_removed) os << degenerate_removed << " degenerate triangle(s) removed\n";
+  if (duplicates_removed) os << duplicates_removed << " duplicate triangle(s) removed\n";
+  if (unused_vertices_removed) os << unused_vertices_removed << " unused vertices removed\n";
+  if (flipped_for_consistency)
+    os << flipped_for_consistency << " triangle(s) flipped for consistent orientation\n";
+  if (flipped_for_lumen) os << flipped_for_lumen << " triangle(s) flipped to face the lumen\n";
+  for (std::size_t c = 0; c < component_volumes.size(); ++c)
+    os << "component " << c << ": lumen volume " << component_volumes[c] << " m^3\n";
+  return os.str();
+}
+
+MeshReport check_and_repair(TriangleMesh& m, const std::string& source) {
+  MeshReport r;
+  const int nv = m.num_vertices();
+
+  // 1. Indices and coordinates.
+  for (int v = 0; v < nv; ++v) {
+    if (!m.vertices[v].allFinite())
+      throw InputError(source, "vertex " + std::to_string(v),
+                       "finite coordinates, got " + str(m.vertices[v]));
+  }
+  for (int t = 0; t < m.num_triangles(); ++t) {
+    for (int v : m.triangles[t]) {
+      if (v < 0 || v >= nv)
+        throw InputError(
+            source, "triangle " + std::to_string(t),
+            "vertex indices in [0, " + std::to_string(nv) + "), got " + std::to_string(v));
+    }
+  }
+
+  // 2. Degenerate triangles and unused vertices.
+  r.degenerate_removed = remove_degenerate(m);
+  r.duplicates_removed = remove_duplicates(m);
+  if (m.triangles.empty())
+    throw InputError(source, "triangles", "at least one triangle with non-zero area");
+  r.unused_vertices_removed = remove_unused_vertices(m);
+  const int nt = m.num_triangles();
+
+  // 3. Edge adjacency by sorting triangle sides; more than two sides on an edge is an error.
+  std::vector<Side> sides;
+  sides.reserve(3 * static_cast<std::size_t>(nt));
+  for (int t = 0; t < nt; ++t)
+    for (int k = 0; k < 3; ++k)
+      sides.push_back({edge_key(m.triangles[t][k], m.triangles[t][(k + 1) % 3]), t, k});
+  std::sort(sides.begin(), sides.end(), [](const Side& a, const Side& b) {
+    return a.key != b.key ? a.key < b.key : a.tri < b.tri;
+  });
+  // neighbour[3 t + k]: triangle across side k (-1 on a boundary); same_dir: both triangles run
+  // the shared edge the same way, i.e. their orientations disagree.
+  std::vector<int> neighbour(3 * static_cast<std::size_t>(nt), -1);
+  std::vector<char> same_dir(3 * static_cast<std::size_t>(nt), 0);
+  std::vector<Side> boundary;
+  int non_manifold = 0;
+  std::uint64_t first_bad = 0;
+  for (std::size_t i = 0; i < sides.size();) {
+    std::size_t j = i + 1;
+    while (j < sides.size() && sides[j].key == sides[i].key) ++j;
+    if (j - i == 1) {
+      boundary.push_back(sides[i]);
+    } else if (j - i == 2) {
+      const Side& a = sides[i];
+      const Side& b = sides[i + 1];
+      const bool same = m.triangles[a.tri][a.slot] == m.triangles[b.tri][b.slot];
+      neighbour[3 * a.tri + a.slot] = b.tri;
+      neighbour[3 * b.tri + b.slot] = a.tri;
+      same_dir[3 * a.tri + a.slot] = same_dir[3 * b.tri + b.slot] = same;
+    } else {
+      if (non_manifold++ == 0) first_bad = sides[i].key;
+    }
+    i = j;
+  }
+  if (non_manifold > 0) {
+    const int u = static_cast<int>(first_bad >> 32);
+    const int v = static_cast<int>(first_bad & 0xffffffffu);
+    throw InputError(source, "edges",
+                     "a manifold surface (each edge shared by at most two triangles); " +
+                         std::to_string(non_manifold) + " edge(s) are shared by more, the first " +
+                         "between vertices " + std::to_string(u) + " " + str(m.vertices[u]) +
+                         " and " + std::to_string(v) + " " + str(m.vertices[v]));
+  }
+
+  // 4. Consistent orientation: flood fill from a seed per component, deciding for each
+  // neighbour whether it must be flipped relative to the seed. A contradiction means the
+  // component is not orientable.
+  std::vector<int> comp(nt, -1);
+  std::vector<char> flip_rel(nt, 0);
+  std::vector<int> members;
+  std::vector<std::vector<int>> comp_members;
+  std::deque<int> queue;
+  for (int seed = 0; seed < nt; ++seed) {
+    if (comp[seed] >= 0) continue;
+    const int c = r.components++;
+    members.clear();
+    comp[seed] = c;
+    queue.push_back(seed);
+    while (!queue.empty()) {
+      const int t = queue.front();
+      queue.pop_front();
+      members.push_back(t);
+      for (int k = 0; k < 3; ++k) {
+        const int u = neighbour[3 * t + k];
+        if (u < 0) continue;
+        const char want = static_cast<char>(flip_rel[t] ^ same_dir[3 * t + k]);
+        if (comp[u] < 0) {
+          comp[u] = c;
+          flip_rel[u] = want;
+          queue.push_back(u);
+        } else if (flip_rel[u] != want) {
+          throw InputError(source, "orientation",
+                           "an orientable surface; the component containing triangle " +
+                               std::to_string(seed) + " cannot be oriented consistently " +
+                               "(Moebius-like)");
+        }
+      }
+    }
+    // Flip the minority, so that the count says how many triangles were wrong.
+    const auto n_rel =
+        std::count_if(members.begin(), members.end(), [&](int t) { return flip_rel[t] != 0; });
+    const bool invert = 2 * n_rel > static_cast<long>(members.size());
+    for (int t : members) {
+      if ((flip_rel[t] != 0) != invert) {
+        flip(m.triangles[t]);
+        ++r.flipped_for_consistency;
+      }
+    }
+    comp_members.push_back(members);
+  }
+
+  // Boundary loops from the now consistently directed boundary sides.
+  struct Directed {
+    int from, to;
+  };
+  std::vector<Directed> bedges;
+  bedges.reserve(boundary.size());
+  for (const Side& s : boundary) {
+    const auto& t = m.triangles[s.tri];
+    for (int k = 0; k < 3; ++k) {
+      if (edge_key(t[k], t[(k + 1) % 3]) == s.key) bedges.push_back({t[k], t[(k + 1) % 3]});
+    }
+  }
+  r.boundary_edges = static_cast<int>(bedges.size());
+  std::sort(bedges.begin(), bedges.end(), [](const Directed& a, const Directed& b) {
+    return a.from != b.from ? a.from < b.from : a.to < b.to;
+  });
+  std::vector<char> used(bedges.size(), 0);
+  auto next_unused = [&](int from) -> int {
+    auto it = std::lower_bound(bedges.begin(), bedges.end(), from,
+                               [](const Directed& e, int f) { return e.from < f; });
+    for (; it != bedges.end() && it->from == from; ++it) {
+      const auto idx = static_cast<std::size_t>(it - bedges.begin());
+      if (!used[idx]) return static_cast<int>(idx);
+    }
+    return -1;
+  };
+  std::vector<int> loop_comp;
+  for (std::size_t e = 0; e < bedges.size(); ++e) {
+    if (used[e]) continue;
+    std::vector<int> loop;
+    int cur = static_cast<int>(e);
+    while (cur >= 0) {
+      used[cur] = 1;
+      loop.push_back(bedges[cur].from);
+      if (bedges[cur].to == loop.front()) break;
+      cur = next_unused(bedges[cur].to);
+    }
+    r.boundary_loops.push_back(std::move(loop));
+  }
+  // Vertex -> component, for assigning loops (boundary vertices lie in one component).
+  std::vector<int> vcomp(m.vertices.size(), -1);
+  for (int t = 0; t < nt; ++t)
+    for (int v : m.triangles[t]) vcomp[v] = comp[t];
+
+  // 5. Lumen orientation. Volume of each component closed with a fan cap from the centroid of
+  // each boundary loop: sum over triangles of a . (b x c) / 6 (divergence theorem), positive
+  // for outward normals. Coordinates relative to the mesh centroid limit cancellation.
+  Vec3 origin = Vec3::Zero();
+  for (const Vec3& p : m.vertices) origin += p;
+  origin /= static_cast<double>(m.vertices.size());
+  auto rel = [&](int v) -> Vec3 { return m.vertices[v] - origin; };
+  std::vector<double> outward(r.components, 0.0);
+  for (int t = 0; t < nt; ++t) {
+    const auto& tri = m.triangles[t];
+    outward[comp[t]] += rel(tri[0]).dot(rel(tri[1]).cross(rel(tri[2]))) / 6.0;
+  }
+  for (const auto& loop : r.boundary_loops) {
+    Vec3 centre = Vec3::Zero();
+    for (int v : loop) centre += rel(v);
+    centre /= static_cast<double>(loop.size());
+    double cap = 0.0;
+    for (std::size_t i = 0; i < loop.size(); ++i) {
+      const int u = loop[i];
+      const int v = loop[(i + 1) % loop.size()];
+      cap += rel(v).dot(rel(u).cross(centre)) / 6.0;  // cap triangle (v, u, centre)
+    }
+    outward[vcomp[loop.front()]] += cap;
+  }
+  for (int c = 0; c < r.components; ++c) {
+    if (outward[c] > 0.0) {
+      for (int t : comp_members[c]) flip(m.triangles[t]);
+      r.flipped_for_lumen += static_cast<int>(comp_members[c].size());
+      for (auto& loop : r.boundary_loops)
+        if (vcomp[loop.front()] == c) std::reverse(loop.begin(), loop.end());
+    }
+    r.component_volumes.push_back(std::abs(outward[c]));
+  }
+
+  // 6. Normals.
+  m.recompute_normals();
+  r.vertices = m.num_vertices();
+  r.triangles = m.num_triangles();
+  return r;
+}
+
+}  // namespace vcsim

@@ -1,0 +1,216 @@
+// AABB tree: structure invariants, queries against brute force, refit against rebuild.
+#include "test_util.h"
+#include "vcsim/collision.h"
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+namespace vcsim {
+namespace {
+
+BentTubeSpec bench_like_spec() {
+  BentTubeSpec spec;
+  spec.radius = 3e-3;
+  spec.sides = 24;
+  spec.ring_spacing = 0.5e-3;
+  spec.cap_end = true;
+  return spec;
+}
+
+// Each triangle appears in exactly one leaf, every box holds its children and triangles (with
+// the fat margin), and children come after their parents.
+void expect_tree_invariants(const AabbTree& tree, const TriangleMesh& m) {
+  const auto& nodes = tree.nodes();
+  std::vector<int> seen(m.num_triangles(), 0);
+  const double margin = tree.settings().margin;
+  for (std::size_t i = 0; i < nodes.size(); ++i) {
+    const AabbNode& n = nodes[i];
+    if (n.is_leaf()) {
+      EXPECT_LE(n.count, std::max(tree.settings().max_leaf_size, 1));
+      for (int k = n.first; k < n.first + n.count; ++k) {
+        const int t = tree.triangle_order()[k];
+        ++seen[t];
+        Aabb tb{Vec3::Constant(1e300), Vec3::Constant(-1e300)};
+        for (int v : m.triangles[t]) {
+          tb.lo = tb.lo.cwiseMin(m.vertices[v]);
+          tb.hi = tb.hi.cwiseMax(m.vertices[v]);
+        }
+        EXPECT_TRUE(n.box.contains(tb)) << "triangle " << t << " in leaf " << i;
+        const Aabb fat{tb.lo.array() - margin * (1 - 1e-9), tb.hi.array() + margin * (1 - 1e-9)};
+        EXPECT_TRUE(n.box.contains(fat)) << "margin missing, leaf " << i;
+      }
+    } else {
+      EXPECT_GT(n.first, static_cast<int>(i));
+      EXPECT_TRUE(n.box.contains(nodes[n.first].box));
+      EXPECT_TRUE(n.box.contains(nodes[n.first + 1].box));
+    }
+  }
+  for (int t = 0; t < m.num_triangles(); ++t) EXPECT_EQ(seen[t], 1) << "triangle " << t;
+  EXPECT_LT(tree.depth(), AabbTree::kMaxDepth);
+}
+
+TEST(AabbTree, BuildInvariants) {
+  TriangleMesh m = make_bent_tube(bench_like_spec());
+  check_and_repair(m);
+  AabbTree tree;
+  tree.build(m);
+  expect_tree_invariants(tree, m);
+  EXPECT_EQ(tree.nodes().size() % 2, 1u);  // root plus pairs
+}
+
+TEST(AabbTree, CoincidentTrianglesStillGiveABoundedTree) {
+  // No SAH split exists when every centroid is the same; median splits must take over.
+  TriangleMesh m;
+  m.vertices = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0)};
+  m.triangles.assign(1000, {0, 1, 2});
+  m.recompute_normals();
+  AabbTree tree;
+  tree.build(m);
+  expect_tree_invariants(tree, m);
+  EXPECT_LE(tree.depth(), 12);
+  const SphereContact c = tree.query_sphere(m, Vec3(0.2, 0.2, 0.1), 0.2);
+  EXPECT_TRUE(c.touching);
+  EXPECT_EQ(c.num_touching, 1000);
+}
+
+// Compares the tree's answer with brute force over all triangles; inside/outside against the
+// analytic tube (centreline distance vs radius) away from the faceting band.
+void expect_matches_brute_force(const AabbTree& tree, const TriangleMesh& m, const Vec3& c,
+                                double r, const std::vector<Vec3>* centreline, double radius,
+                                double band) {
+  const SphereContact got = tree.query_sphere(m, c, r);
+  const test::BruteForce want = test::brute_force(m, c, r);
+  EXPECT_EQ(got.num_touching, want.touching);
+  if (want.d_min > r) {
+    EXPECT_FALSE(got.touching);
+    return;
+  }
+  ASSERT_GE(got.triangle, 0);
+  EXPECT_NEAR(got.distance, want.d_min, 1e-15);
+  if (centreline != nullptr) {
+    // Beyond either end the centreline says nothing about the wall: skip the side check there.
+    Vec3 q = Vec3::Zero();
+    const double dc = test::polyline_distance(*centreline, c, &q);
+    const bool at_end = q == centreline->front() || q == centreline->back();
+    if (!at_end && std::abs(dc - radius) > band) {
+      const bool outside = dc > radius;
+      EXPECT_EQ(got.centre_outside, outside) << "centre " << c.transpose();
+      EXPECT_TRUE(got.touching);
+      EXPECT_NEAR(got.depth, outside ? r + want.d_min : r - want.d_min, 1e-15);
+    }
+  }
+  if (got.touching && want.weighted_normal.norm() > 1e-9 * r * r * r) {
+    EXPECT_LT((got.normal - want.weighted_normal.normalized()).norm(), 1e-9);
+  }
+}
+
+TEST(AabbTree, SphereQueriesMatchBruteForce) {
+  const BentTubeSpec spec = bench_like_spec();
+  TriangleMesh m = make_bent_tube(spec);
+  check_and_repair(m);
+  AabbTree tree;
+  tree.build(m);
+  const auto line =
+      bent_centreline(spec.straight1, spec.bend_radius, spec.bend_angle, spec.straight2, 1e-5);
+  const double band = 0.05e-3;  // beyond the faceting and chord error of this mesh
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<std::size_t> pick(0, line.size() - 1);
+  std::normal_distribution<double> offset(0.0, spec.radius * 0.7);
+  std::uniform_real_distribution<double> radius(0.2e-3, 2e-3);
+  int touching = 0, outside = 0;
+  for (int i = 0; i < 1500; ++i) {
+    const Vec3 c = line[pick(rng)] + Vec3(offset(rng), offset(rng), offset(rng));
+    const double r = radius(rng);
+    expect_matches_brute_force(tree, m, c, r, &line, spec.radius, band);
+    const SphereContact got = tree.query_sphere(m, c, r);
+    touching += got.touching;
+    outside += got.centre_outside && got.touching;
+  }
+  // The sample exercises all cases.
+  EXPECT_GT(touching, 300);
+  EXPECT_GT(outside, 50);
+}
+
+TEST(AabbTree, BatchQueryEqualsSingleQueries) {
+  TriangleMesh m = make_bent_tube(bench_like_spec());
+  check_and_repair(m);
+  AabbTree tree;
+  tree.build(m);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-4e-3, 4e-3);
+  std::vector<Vec3> centres;
+  std::vector<double> radii;
+  for (int i = 0; i < 256; ++i) {
+    centres.push_back(Vec3(u(rng), u(rng), 20e-3 + 4 * u(rng)));
+    radii.push_back(0.45e-3 + 1e-5 * i);
+  }
+  std::vector<SphereContact> out(centres.size());
+  tree.query_spheres(m, centres, radii, out);
+  for (std::size_t i = 0; i < centres.size(); ++i) {
+    const SphereContact s = tree.query_sphere(m, centres[i], radii[i]);
+    EXPECT_EQ(out[i].touching, s.touching);
+    EXPECT_EQ(out[i].depth, s.depth);
+    EXPECT_EQ(out[i].normal, s.normal);
+  }
+  const std::array<double, 1> one{0.45e-3};
+  tree.query_spheres(m, centres, one, out);
+  for (std::size_t i = 0; i < centres.size(); ++i)
+    EXPECT_EQ(out[i].depth, tree.query_sphere(m, centres[i], 0.45e-3).depth);
+}
+
+// A smooth travelling wave on the wall, like a beating vessel: refit must answer exactly as a
+// tree built from scratch on the moved vertices.
+TEST(AabbTree, RefitAfterDeformationMatchesRebuild) {
+  const BentTubeSpec spec = bench_like_spec();
+  TriangleMesh m = make_bent_tube(spec);
+  check_and_repair(m);
+  const std::vector<Vec3> rest = m.vertices;
+  AabbTree refitted;
+  refitted.build(m);
+
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int step = 1; step <= 4; ++step) {
+    const double phase = 0.7 * step;
+    for (std::size_t v = 0; v < rest.size(); ++v) {
+      const Vec3& p = rest[v];
+      m.vertices[v] =
+          p + 1.5e-3 * Vec3(std::sin(200.0 * p.z() + phase), std::cos(150.0 * p.x() + phase),
+                            0.5 * std::sin(300.0 * p.y() - phase));
+    }
+    m.recompute_normals();
+    refitted.refit(m);
+    expect_tree_invariants(refitted, m);
+    AabbTree rebuilt;
+    rebuilt.build(m);
+    for (int i = 0; i < 300; ++i) {
+      const Vec3 c = Vec3(10e-3 * u(rng), 4e-3 * u(rng), 25e-3 + 25e-3 * u(rng));
+      const double r = 1e-3 + 0.5e-3 * u(rng);
+      const SphereContact a = refitted.query_sphere(m, c, r);
+      const SphereContact b = rebuilt.query_sphere(m, c, r);
+      ASSERT_EQ(a.touching, b.touching);
+      EXPECT_EQ(a.num_touching, b.num_touching);
+      EXPECT_EQ(a.distance, b.distance);
+      EXPECT_EQ(a.centre_outside, b.centre_outside);
+      EXPECT_EQ(a.depth, b.depth);
+      if (a.touching) {
+        EXPECT_LT((a.normal - b.normal).norm(), 1e-12);
+      }
+    }
+  }
+}
+
+TEST(AabbTree, EmptyTreeAndSettings) {
+  AabbTree tree;
+  TriangleMesh m;
+  EXPECT_FALSE(tree.query_sphere(m, Vec3::Zero(), 1.0).touching);
+  TriangleMesh tube = test::straight_tube(1e-3, 5e-3, 8, 3);
+  EXPECT_THROW(tree.build(tube, {.max_leaf_size = 0}), InputError);
+  EXPECT_THROW(tree.build(tube, {.margin = -1.0}), InputError);
+  tree.build(tube, {.max_leaf_size = 1, .bins = 4, .margin = 0.0});
+  expect_tree_invariants(tree, tube);
+}
+
+}  // namespace
+}  // namespace vcsim

@@ -1,0 +1,260 @@
+// Mesh import and export: every format loads the known tube with the right counts, scale and
+// inward orientation; malformed files give an InputError naming the file, never a crash.
+#include "vcsim/mesh_io.h"
+#include "test_util.h"
+
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <random>
+#include <sstream>
+
+namespace vcsim {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr double kR = 3e-3;
+constexpr double kL = 12e-3;
+constexpr int kSides = 16;
+constexpr int kRings = 10;
+
+class MeshIo : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    std::string tmpl = (fs::temp_directory_path() / "vcsim_mesh_io_XXXXXX").string();
+    ASSERT_NE(mkdtemp(tmpl.data()), nullptr);
+    dir = tmpl;
+    tube = test::straight_tube(kR, kL, kSides, kRings);
+  }
+  void TearDown() override { fs::remove_all(dir); }
+
+  std::string path(const std::string& name) const { return (dir / name).string(); }
+
+  static void write_bytes(const std::string& p, const std::string& bytes) {
+    std::ofstream out(p, std::ios::binary);
+    out << bytes;
+  }
+  static std::string read_bytes(const std::string& p) {
+    std::ifstream in(p, std::ios::binary);
+    return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  }
+
+  // The loaded mesh is the tube: same counts, every vertex within float precision of one of
+  // the tube's, normals toward the axis.
+  void expect_is_tube(const TriangleMesh& m, const MeshReport& r) const {
+    EXPECT_EQ(m.num_vertices(), kSides * kRings);
+    EXPECT_EQ(m.num_triangles(), 2 * kSides * (kRings - 1));
+    EXPECT_EQ(r.boundary_loops.size(), 2u);
+    for (const Vec3& v : m.vertices) {
+      double best = 1e9;
+      for (const Vec3& w : tube.vertices) best = std::min(best, (v - w).norm());
+      EXPECT_LT(best, 1e-8);  // metres: the unit scale was applied
+    }
+    for (int t = 0; t < m.num_triangles(); ++t) {
+      const auto& tri = m.triangles[t];
+      const Vec3 c = (m.vertices[tri[0]] + m.vertices[tri[1]] + m.vertices[tri[2]]) / 3.0;
+      const Vec3 to_axis = Vec3(-c.x(), -c.y(), 0.0).normalized();
+      EXPECT_GT(m.normals[t].dot(to_axis), 0.98) << "triangle " << t;
+    }
+  }
+
+  // Runs f, which must throw an InputError whose message names the file and contains `what`.
+  static void expect_input_error(const std::function<void()>& f, const std::string& file,
+                                 const std::string& what) {
+    try {
+      f();
+      ADD_FAILURE() << "no InputError for " << file;
+    } catch (const InputError& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find(file), std::string::npos) << msg;
+      EXPECT_NE(msg.find(what), std::string::npos) << msg;
+    } catch (const std::exception& e) {
+      ADD_FAILURE() << "wrong exception for " << file << ": " << e.what();
+    }
+  }
+
+  TriangleMesh outward() const {
+    TriangleMesh m = tube;
+    for (auto& t : m.triangles) std::swap(t[1], t[2]);
+    return m;
+  }
+
+  fs::path dir;
+  TriangleMesh tube;
+};
+
+TEST_F(MeshIo, AsciiStlInMillimetres) {
+  const std::string p = path("tube_ascii.stl");
+  write_stl(tube, p, /*binary=*/false, 1e-3);
+  EXPECT_EQ(read_bytes(p).rfind("solid", 0), 0u);
+  MeshReport r;
+  const TriangleMesh m = load_mesh(p, {.unit_scale = 1e-3}, &r);
+  expect_is_tube(m, r);
+  EXPECT_EQ(r.flipped_for_lumen, 0);
+}
+
+TEST_F(MeshIo, BinaryStlWithOutwardWindingIsReoriented) {
+  const std::string p = path("tube_binary.STL");  // extension in any case
+  write_stl(outward(), p, /*binary=*/true, 1e-3);
+  EXPECT_EQ(read_bytes(p).size(), 84u + 50u * static_cast<unsigned>(tube.num_triangles()));
+  MeshReport r;
+  const TriangleMesh m = load_mesh(p, {.unit_scale = 1e-3}, &r);
+  expect_is_tube(m, r);
+  EXPECT_EQ(r.flipped_for_lumen, m.num_triangles());
+}
+
+TEST_F(MeshIo, ObjInMetres) {
+  const std::string p = path("tube.obj");
+  write_obj(tube, p);
+  MeshReport r;
+  const TriangleMesh m = load_mesh(p, {}, &r);
+  expect_is_tube(m, r);
+}
+
+TEST_F(MeshIo, AsciiPlyInMillimetres) {
+  std::ostringstream os;
+  os << "ply\nformat ascii 1.0\nelement vertex " << tube.num_vertices()
+     << "\nproperty float x\nproperty float y\nproperty float z\nelement face "
+     << tube.num_triangles() << "\nproperty list uchar int vertex_indices\nend_header\n";
+  os.precision(9);
+  for (const Vec3& v : tube.vertices)
+    os << v.x() * 1e3 << " " << v.y() * 1e3 << " " << v.z() * 1e3 << "\n";
+  for (const auto& t : tube.triangles) os << "3 " << t[0] << " " << t[2] << " " << t[1] << "\n";
+  const std::string p = path("tube.ply");
+  write_bytes(p, os.str());
+  MeshReport r;
+  const TriangleMesh m = load_mesh(p, {.unit_scale = 1e-3}, &r);
+  expect_is_tube(m, r);
+  EXPECT_EQ(r.flipped_for_lumen, m.num_triangles());
+}
+
+TEST_F(MeshIo, BinaryPlyAndItsTruncation) {
+  std::ostringstream os;
+  os << "ply\nformat binary_little_endian 1.0\nelement vertex " << tube.num_vertices()
+     << "\nproperty double x\nproperty double y\nproperty double z\nelement face "
+     << tube.num_triangles() << "\nproperty list uchar int vertex_indices\nend_header\n";
+  std::string bytes = os.str();
+  auto put = [&](const auto& v) { bytes.append(reinterpret_cast<const char*>(&v), sizeof v); };
+  for (const Vec3& v : tube.vertices) put(v);
+  for (const auto& t : tube.triangles) {
+    put(static_cast<unsigned char>(3));
+    put(t);
+  }
+  const std::string p = path("tube_binary.ply");
+  write_bytes(p, bytes);
+  MeshReport r;
+  expect_is_tube(load_mesh(p, {}, &r), r);
+  write_bytes(p, bytes.substr(0, bytes.size() - 7));
+  expect_input_error([&] { load_mesh(p); }, p, "element face");
+}
+
+TEST_F(MeshIo, TruncatedBinaryStl) {
+  const std::string p = path("truncated.stl");
+  write_stl(tube, p, true);
+  const std::string bytes = read_bytes(p);
+  write_bytes(p, bytes.substr(0, bytes.size() - 30));
+  expect_input_error([&] { load_mesh(p); }, p, "84 + 50 n");
+  write_bytes(p, bytes.substr(0, 50));
+  expect_input_error([&] { load_mesh(p); }, p, "84 bytes");
+}
+
+TEST_F(MeshIo, StlHeaderClaimsMoreTriangles) {
+  const std::string p = path("overclaim.stl");
+  write_stl(tube, p, true);
+  std::string bytes = read_bytes(p);
+  const std::uint32_t n = static_cast<std::uint32_t>(tube.num_triangles()) + 5;
+  std::memcpy(bytes.data() + 80, &n, 4);
+  write_bytes(p, bytes);
+  expect_input_error([&] { load_mesh(p); }, p, "triangles its binary header claims");
+}
+
+TEST_F(MeshIo, NanCoordinates) {
+  const std::string ascii = path("nan_ascii.stl");
+  write_bytes(ascii,
+              "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+              "vertex 0 nan 0\nendloop\nendfacet\nendsolid t\n");
+  expect_input_error([&] { load_mesh(ascii); }, ascii, "finite");
+
+  const std::string bin = path("nan_binary.stl");
+  write_stl(tube, bin, true);
+  std::string bytes = read_bytes(bin);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  std::memcpy(bytes.data() + 84 + 12 + 4, &nan, 4);  // first triangle, vertex 0, y
+  write_bytes(bin, bytes);
+  expect_input_error([&] { load_mesh(bin); }, bin, "finite");
+
+  const std::string obj = path("inf.obj");
+  write_bytes(obj, "v 0 0 0\nv 1 0 0\nv 0 inf 0\nf 1 2 3\n");
+  expect_input_error([&] { load_mesh(obj); }, obj, "finite");
+}
+
+TEST_F(MeshIo, EmptyMissingAndUnknownFiles) {
+  for (const char* name : {"empty.stl", "empty.obj", "empty.ply"}) {
+    const std::string p = path(name);
+    write_bytes(p, "");
+    expect_input_error([&] { load_mesh(p); }, p, "0 bytes");
+  }
+  const std::string missing = path("missing.stl");
+  expect_input_error([&] { load_mesh(missing); }, missing, "not found");
+  const std::string unknown = path("tube.xyz");
+  write_bytes(unknown, "1 2 3\n");
+  expect_input_error([&] { load_mesh(unknown); }, unknown, "extension");
+  expect_input_error([&] { load_mesh(dir.string() + "/"); }, dir.string(), "");
+}
+
+TEST_F(MeshIo, GarbageAndBrokenStructure) {
+  std::mt19937 rng(99);
+  std::uniform_int_distribution<int> byte(0, 255);
+  for (const char* name : {"garbage.obj", "garbage.stl", "garbage.ply"}) {
+    for (int trial = 0; trial < 5; ++trial) {
+      std::string bytes(1000 + 731 * trial, '\0');
+      for (char& c : bytes) c = static_cast<char>(byte(rng));
+      const std::string p = path(name);
+      write_bytes(p, bytes);
+      expect_input_error([&] { load_mesh(p); }, p, "");
+    }
+  }
+  const std::string bad_index = path("bad_index.obj");
+  write_bytes(bad_index, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 999\n");
+  expect_input_error([&] { load_mesh(bad_index); }, bad_index, "");
+  const std::string no_faces = path("points.obj");
+  write_bytes(no_faces, "v 0 0 0\nv 1 0 0\nv 0 1 0\n");
+  expect_input_error([&] { load_mesh(no_faces); }, no_faces, "");
+  const std::string short_ply = path("short.ply");
+  write_bytes(short_ply,
+              "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+              "property float z\nelement face 2\nproperty list uchar int vertex_indices\n"
+              "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 2 4\n");
+  expect_input_error([&] { load_mesh(short_ply); }, short_ply, "");
+  const std::string ascii_cut = path("cut.stl");
+  write_bytes(ascii_cut, "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0");
+  expect_input_error([&] { load_mesh(ascii_cut); }, ascii_cut, "facet 0");
+  const std::string ascii_word = path("word.stl");
+  write_bytes(ascii_word,
+              "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 zero\n"
+              "vertex 0 1 0\nendloop\nendfacet\nendsolid t\n");
+  expect_input_error([&] { load_mesh(ascii_word); }, ascii_word, "'zero'");
+  const std::string ascii_open = path("open.stl");
+  write_bytes(ascii_open,
+              "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+              "vertex 0 1 0\nendloop\nendfacet\n");
+  expect_input_error([&] { load_mesh(ascii_open); }, ascii_open, "endsolid");
+}
+
+TEST_F(MeshIo, BadScaleAndUnwritablePath) {
+  const std::string p = path("tube.obj");
+  write_obj(tube, p);
+  expect_input_error([&] { load_mesh(p, {.unit_scale = 0.0}); }, p, "unit_scale");
+  const std::string nowhere = path("no/such/dir/tube.stl");
+  expect_input_error([&] { write_stl(tube, nowhere); }, nowhere, "writable");
+  expect_input_error([&] { write_obj(tube, nowhere); }, nowhere, "writable");
+}
+
+}  // namespace
+}  // namespace vcsim
