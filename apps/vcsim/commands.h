@@ -1,21 +1,25 @@
-// Subcommands of the vcsim command line (each returns the process exit status).
+// Subcommands of the vcsim command line. Each group lives in its own cmd_*.cpp and registers an
+// installer that adds its subcommands and callbacks; a callback stores the exit status. Bad input
+// is thrown as InputError (printed on one line by main, exit status 2).
 #pragma once
 
-#include <string>
+#include <CLI/CLI.hpp>
 
-#include "vcsim/rod.h"
+#include <utility>
+#include <vector>
 
 namespace vcsim::app {
 
-struct RodBenchOptions {
-  int nodes = 256;
-  int steps = 20000;
-  int warmup = 2000;
-  int iterations = 1;
-  DistanceMethod method = DistanceMethod::kGlobal;
-  bool json = false;
-};
+using CommandInstaller = void (*)(CLI::App& app, int& status);
 
-int bench_rod(const RodBenchOptions& opt);
+// Installers sorted by their order key (the order subcommands appear in --help).
+std::vector<std::pair<int, CommandInstaller>>& command_installers();
+inline int register_command(int order, CommandInstaller installer) {
+  command_installers().emplace_back(order, installer);
+  return order;
+}
+
+// The `bench` subcommand group, shared by every cmd_*.cpp that adds a benchmark to it.
+CLI::App& bench_group(CLI::App& app);
 
 }  // namespace vcsim::app

@@ -29,41 +29,50 @@ inline double constraint_at(const Vec3& xa, const Vec3& va, const Vec3& xb, cons
 }
 }  // namespace
 
-bool distance_global(const RodModel& md, double dt, std::span<const Vec3> x, std::span<Vec3> v,
+bool distance_global(const RodModel& md, double dt, std::span<const Vec3> xs, std::span<Vec3> vs,
                      RodWorkspace& ws, DistanceImpulses& out) {
   const int m = md.m;
-  const double* w = md.inv_mass.data();
-  for (int i = 0; i < md.n; ++i) ws.pred[i] = x[i] + dt * v[i];
+  // Raw pointers (see rod_step.cpp: SIMD stores would force address reloads).
+  const double* __restrict w = md.inv_mass.data();
+  const double* __restrict rest = md.rest_length.data();
+  const Vec3* __restrict x = xs.data();
+  Vec3* __restrict v = vs.data();
+  Vec3* __restrict p = ws.pred.data();
+  Vec3* __restrict dir = ws.dir.data();
+  double* __restrict diag = ws.diag.data();
+  double* __restrict off = ws.offdiag.data();
+  double* __restrict rhs = ws.rhs.data();
+  for (int i = 0; i < md.n; ++i) p[i] = x[i] + dt * v[i];
   const double inv_dt = 1.0 / dt;
   // C_j at the predicted positions, n_j, and the diagonal A_jj = w_j + w_{j+1}.
   for (int j = 0; j < m; ++j) {
-    const Vec3 e = ws.pred[j + 1] - ws.pred[j];
+    const Vec3 e = p[j + 1] - p[j];
     const double len = std::sqrt(e.squaredNorm());
-    ws.dir[j] = e * (1.0 / len);
-    ws.rhs[j] = (md.rest_length[j] - len) * inv_dt;
+    dir[j] = e * (1.0 / len);
+    rhs[j] = (rest[j] - len) * inv_dt;
     double d = w[j] + w[j + 1];
     if (d == 0.0) {  // both ends held: the constraint cannot act
       d = 1.0;
-      ws.rhs[j] = 0.0;
+      rhs[j] = 0.0;
     }
-    ws.diag[j] = d * (1.0 + kRegularisation);
+    diag[j] = d * (1.0 + kRegularisation);
   }
   // A_{j,j+1} = -w_{j+1} n_j . n_{j+1}.
-  for (int j = 0; j + 1 < m; ++j) ws.offdiag[j] = -w[j + 1] * ws.dir[j].dot(ws.dir[j + 1]);
+  for (int j = 0; j + 1 < m; ++j) off[j] = -w[j + 1] * dir[j].dot(dir[j + 1]);
   int info = 0;
   const int nrhs = 1;
-  dpttrf_(&m, ws.diag.data(), ws.offdiag.data(), &info);
+  dpttrf_(&m, diag, off, &info);
   if (info != 0) return false;
-  dpttrs_(&m, &nrhs, ws.diag.data(), ws.offdiag.data(), ws.rhs.data(), &m, &info);
+  dpttrs_(&m, &nrhs, diag, off, rhs, &m, &info);
   if (info != 0) return false;
   // dv = W J^T lambda: node k gets w_k (n_{k-1} lambda_{k-1} - n_k lambda_k).
   for (int j = 0; j < m; ++j) {
-    const Vec3 imp = ws.rhs[j] * ws.dir[j];
+    const Vec3 imp = rhs[j] * dir[j];
     v[j] -= w[j] * imp;
     v[j + 1] += w[j + 1] * imp;
   }
-  out.first += -ws.rhs[0] * ws.dir[0];
-  out.last += ws.rhs[m - 1] * ws.dir[m - 1];
+  out.first += -rhs[0] * dir[0];
+  out.last += rhs[m - 1] * dir[m - 1];
   return true;
 }
 

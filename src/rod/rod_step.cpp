@@ -52,24 +52,39 @@ namespace {
 
 void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, RodWorkspace& ws) {
   const int n = md.n, m = md.m;
-  // Each frame as a matrix once: every rotation below reuses it.
-  for (int j = 0; j < m; ++j) ws.rot[j] = st.q[j].toRotationMatrix();
+  // Raw pointers: Eigen's SIMD stores may alias anything, so through std::vector the compiler
+  // would reload every array's address after each store.
+  Vec3* __restrict force = ws.force.data();
+  Vec3* __restrict torque = ws.torque.data();
+  Mat3* __restrict rot = ws.rot.data();
+  const Vec3* __restrict x = st.x.data();
+  const Vec3* __restrict v = st.v.data();
+  const Quat* __restrict q = st.q.data();
+  const double* __restrict mass = md.node_mass.data();
+  const double* __restrict lv = md.vertex_length.data();
+  const double* __restrict rest = md.rest_length.data();
+  const double* __restrict kp = md.kp.data();
+  const Vec3* __restrict kv = md.vertex_stiffness.data();
+  const Vec3* __restrict w0 = md.rest_darboux.data();
   // Gravity, applied loads and mass-proportional drag on the nodes.
-  for (int i = 0; i < n; ++i) {
-    ws.force[i] = md.node_mass[i] * (s.gravity - s.drag * st.v[i]) + st.f_ext[i];
+  const Vec3 g = s.gravity;
+  const double drag = s.drag;
+  for (int i = 0; i < n; ++i) force[i] = mass[i] * (g - drag * v[i]) + st.f_ext[i];
+  for (int j = 0; j < m; ++j) torque[j] = st.tau_ext[j];
+  // One pass over the edges: the frame as a matrix (reused by every rotation of this step),
+  // bending and twisting at the vertex before the edge, and the edge's parallel penalty.
+  for (int j = 0; j < m; ++j) {
+    rot[j] = q[j].toRotationMatrix();
+    if (j > 0) {
+      bend_twist(q[j - 1], rot[j - 1], q[j], lv[j], kv[j], w0[j], torque[j - 1], torque[j]);
+    }
+    parallel_penalty(x[j], x[j + 1], rot[j].col(2), rest[j], kp[j], force[j], force[j + 1],
+                     torque[j]);
   }
   if (s.angular_drag > 0.0) {
     for (int j = 0; j < m; ++j) {
-      ws.torque[j] =
-          st.tau_ext[j] - s.angular_drag * (ws.rot[j] * md.inertia[j].cwiseProduct(st.omega[j]));
+      torque[j] -= s.angular_drag * (rot[j] * md.inertia[j].cwiseProduct(st.omega[j]));
     }
-  } else {
-    for (int j = 0; j < m; ++j) ws.torque[j] = st.tau_ext[j];
-  }
-  // Bending and twisting at the interior vertices.
-  for (int v = 1; v < m; ++v) {
-    bend_twist(st.q[v - 1], ws.rot[v - 1], st.q[v], md.vertex_length[v], md.vertex_stiffness[v],
-               md.rest_darboux[v], ws.torque[v - 1], ws.torque[v]);
   }
   // Clamps: half vertices between the clamp frames and the end frames.
   st.base_torque.setZero();
@@ -82,22 +97,17 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
     bend_twist(st.q[m - 1], ws.rot[m - 1], st.tip_frame, md.vertex_length[m],
                md.vertex_stiffness[m], md.rest_darboux[m], ws.torque[m - 1], st.tip_torque);
   }
-  // Parallel constraint penalty: edges along their frames' d3.
-  for (int j = 0; j < m; ++j) {
-    parallel_penalty(st.x[j], st.x[j + 1], ws.rot[j].col(2), md.rest_length[j], md.kp[j],
-                     ws.force[j], ws.force[j + 1], ws.torque[j]);
-  }
   // Stiffness-proportional internal damping (Rayleigh beta): resists the rates of bending,
   // twisting and of the parallel-constraint strain, never rigid motion.
   if (s.internal_damping > 0.0) {
     const double beta = s.internal_damping;
-    for (int v = 1; v < m; ++v) {
-      const Vec3 rel_w = ws.rot[v] * st.omega[v] - ws.rot[v - 1] * st.omega[v - 1];
-      const Vec3 rel_a = ws.rot[v - 1].transpose() * rel_w;
-      const Vec3 t = ws.rot[v - 1] *
-                     ((beta / md.vertex_length[v]) * md.vertex_stiffness[v].cwiseProduct(rel_a));
-      ws.torque[v - 1] += t;
-      ws.torque[v] -= t;
+    for (int k = 1; k < m; ++k) {  // vertex k between frames k-1 and k
+      const Vec3 rel_w = ws.rot[k] * st.omega[k] - ws.rot[k - 1] * st.omega[k - 1];
+      const Vec3 rel_a = ws.rot[k - 1].transpose() * rel_w;
+      const Vec3 t = ws.rot[k - 1] *
+                     ((beta / md.vertex_length[k]) * md.vertex_stiffness[k].cwiseProduct(rel_a));
+      ws.torque[k - 1] += t;
+      ws.torque[k] -= t;
     }
     for (int j = 0; j < m; ++j) {
       const Vec3 d3 = ws.rot[j].col(2);
@@ -131,10 +141,20 @@ void rod_step(const RodModel& md, const RodSettings& s, RodState& st, RodWorkspa
   const double t1 = profile ? now_us() : 0.0;
 
   // 2. semi-implicit integration of velocities (held nodes have zero inverse mass)
-  for (int i = 0; i < md.n; ++i) st.v[i] += (dt * md.inv_mass[i]) * ws.force[i];
-  for (int j = 0; j < md.m; ++j) {
-    const Vec3 tau_body = ws.rot[j].transpose() * ws.torque[j];
-    st.omega[j] += dt * euler_rhs(st.omega[j], md.inertia[j], md.inv_inertia[j], tau_body);
+  {
+    Vec3* __restrict vel = st.v.data();
+    Vec3* __restrict w = st.omega.data();
+    const Vec3* __restrict f = ws.force.data();
+    const Vec3* __restrict tau = ws.torque.data();
+    const Mat3* __restrict rot = ws.rot.data();
+    const double* __restrict inv_m = md.inv_mass.data();
+    const Vec3* __restrict inertia = md.inertia.data();
+    const Vec3* __restrict inv_inertia = md.inv_inertia.data();
+    for (int i = 0; i < md.n; ++i) vel[i] += (dt * inv_m[i]) * f[i];
+    for (int j = 0; j < md.m; ++j) {
+      const Vec3 tau_body = rot[j].transpose() * tau[j];
+      w[j] += dt * euler_rhs(w[j], inertia[j], inv_inertia[j], tau_body);
+    }
   }
   const double t2 = profile ? now_us() : 0.0;
 
@@ -163,8 +183,14 @@ void rod_step(const RodModel& md, const RodSettings& s, RodState& st, RodWorkspa
   const double t3 = profile ? now_us() : 0.0;
 
   // 4. positions and frames
-  for (int i = 0; i < md.n; ++i) st.x[i] += dt * st.v[i];
-  for (int j = 0; j < md.m; ++j) st.q[j] = integrate_rotation(st.q[j], st.omega[j], dt);
+  {
+    Vec3* __restrict x = st.x.data();
+    const Vec3* __restrict v = st.v.data();
+    Quat* __restrict q = st.q.data();
+    const Vec3* __restrict w = st.omega.data();
+    for (int i = 0; i < md.n; ++i) x[i] += dt * v[i];
+    for (int j = 0; j < md.m; ++j) q[j] = integrate_rotation(q[j], w[j], dt);
+  }
   st.time += dt;
   ++st.steps;
 

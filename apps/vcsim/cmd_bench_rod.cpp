@@ -2,19 +2,31 @@
 // iteration, no contacts) for a given number of nodes, with the median time of each stage.
 #include <algorithm>
 #include <iostream>
+#include <memory>
 #include <nlohmann/json.hpp>
+#include <string>
 #include <vector>
 
 #include "commands.h"
+#include "vcsim/rod.h"
 
 namespace vcsim::app {
 
 namespace {
+
 double median(std::vector<double> v) {
   std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
   return v[v.size() / 2];
 }
-}  // namespace
+
+struct RodBenchOptions {
+  int nodes = 256;
+  int steps = 20000;
+  int warmup = 2000;
+  int iterations = 1;
+  std::string method = "global";
+  bool json = false;
+};
 
 int bench_rod(const RodBenchOptions& opt) {
   if (opt.nodes < 3 || opt.nodes > 100000) {
@@ -33,7 +45,7 @@ int bench_rod(const RodBenchOptions& opt) {
   RodState st = make_state(md, def);
   RodSettings s;
   s.gravity = Vec3(0, 0, -9.81);
-  s.distance = opt.method;
+  s.distance = distance_method_from_string(opt.method, "bench rod --method");
   s.iterations = opt.iterations;
   s.dt = estimate_stable_dt(md, s);
   s.validate("bench rod");
@@ -53,7 +65,7 @@ int bench_rod(const RodBenchOptions& opt) {
   }
   nlohmann::json j = {
       {"nodes", opt.nodes},
-      {"method", to_string(opt.method)},
+      {"method", opt.method},
       {"iterations", opt.iterations},
       {"steps", opt.steps},
       {"dt_s", s.dt},
@@ -77,5 +89,20 @@ int bench_rod(const RodBenchOptions& opt) {
   }
   return 0;
 }
+
+void install(CLI::App& app, int& status) {
+  auto opt = std::make_shared<RodBenchOptions>();
+  auto* cmd = bench_group(app).add_subcommand("rod", "Time one rod step (no contacts)");
+  cmd->add_option("--nodes", opt->nodes, "Number of mass points");
+  cmd->add_option("--steps", opt->steps, "Timed steps");
+  cmd->add_option("--iterations", opt->iterations, "Constraint iterations per step");
+  cmd->add_option("--method", opt->method, "global, local-gs, local-jacobi, penalty");
+  cmd->add_flag("--json", opt->json, "Print JSON");
+  cmd->callback([opt, &status] { status = bench_rod(*opt); });
+}
+
+const int kRegistered = register_command(20, install);
+
+}  // namespace
 
 }  // namespace vcsim::app
