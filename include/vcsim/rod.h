@@ -160,6 +160,11 @@ struct RodWorkspace {
   std::vector<double> diag, offdiag, rhs, lambda;  // (m) tridiagonal system
   std::vector<Vec3> dv;                            // (n) Jacobi accumulator
   std::vector<Vec3> pred;                          // (n) predicted positions x + dt v
+  // Per-step effective inverse masses: the model's, with nodes and frames held by a drive or a
+  // clamp set to zero (rod_begin_step copies the model's; a drive may then hold more).
+  std::vector<double> inv_mass;    // (n)
+  std::vector<double> frame_free;  // (m) 1 for a dynamic frame, 0 for a prescribed one
+  std::vector<Vec3> node_impulse;  // (n) constraint impulses of this step (N s), held nodes too
   void resize(const RodModel& model);
 };
 

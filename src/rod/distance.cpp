@@ -30,10 +30,10 @@ inline double constraint_at(const Vec3& xa, const Vec3& va, const Vec3& xb, cons
 }  // namespace
 
 bool distance_global(const RodModel& md, double dt, std::span<const Vec3> xs, std::span<Vec3> vs,
-                     RodWorkspace& ws, DistanceImpulses& out) {
+                     RodWorkspace& ws) {
   const int m = md.m;
   // Raw pointers (see rod_step.cpp: SIMD stores would force address reloads).
-  const double* __restrict w = md.inv_mass.data();
+  const double* __restrict w = ws.inv_mass.data();
   const double* __restrict rest = md.rest_length.data();
   const Vec3* __restrict x = xs.data();
   Vec3* __restrict v = vs.data();
@@ -66,19 +66,20 @@ bool distance_global(const RodModel& md, double dt, std::span<const Vec3> xs, st
   dpttrs_(&m, &nrhs, diag, off, rhs, &m, &info);
   if (info != 0) return false;
   // dv = W J^T lambda: node k gets w_k (n_{k-1} lambda_{k-1} - n_k lambda_k).
+  Vec3* __restrict node_imp = ws.node_impulse.data();
   for (int j = 0; j < m; ++j) {
     const Vec3 imp = rhs[j] * dir[j];
     v[j] -= w[j] * imp;
     v[j + 1] += w[j + 1] * imp;
+    node_imp[j] -= imp;
+    node_imp[j + 1] += imp;
   }
-  out.first += -rhs[0] * dir[0];
-  out.last += rhs[m - 1] * dir[m - 1];
   return true;
 }
 
 void distance_local_gs(const RodModel& md, double dt, std::span<const Vec3> x, std::span<Vec3> v,
-                       RodWorkspace& ws, DistanceImpulses& out) {
-  const double* w = md.inv_mass.data();
+                       RodWorkspace& ws) {
+  const double* w = ws.inv_mass.data();
   for (int j = 0; j < md.m; ++j) {
     const double ws_sum = w[j] + w[j + 1];
     if (ws_sum == 0.0) continue;
@@ -87,14 +88,14 @@ void distance_local_gs(const RodModel& md, double dt, std::span<const Vec3> x, s
     const double lambda = -c / (dt * ws_sum);
     v[j] -= w[j] * lambda * n;
     v[j + 1] += w[j + 1] * lambda * n;
-    if (j == 0) out.first += -lambda * n;
-    if (j == md.m - 1) out.last += lambda * n;
+    ws.node_impulse[j] -= lambda * n;
+    ws.node_impulse[j + 1] += lambda * n;
   }
 }
 
 void distance_local_jacobi(const RodModel& md, double dt, std::span<const Vec3> x,
-                           std::span<Vec3> v, RodWorkspace& ws, DistanceImpulses& out) {
-  const double* w = md.inv_mass.data();
+                           std::span<Vec3> v, RodWorkspace& ws) {
+  const double* w = ws.inv_mass.data();
   for (int i = 0; i < md.n; ++i) ws.dv[i].setZero();
   for (int j = 0; j < md.m; ++j) {
     const double ws_sum = w[j] + w[j + 1];
@@ -104,8 +105,8 @@ void distance_local_jacobi(const RodModel& md, double dt, std::span<const Vec3> 
     const double lambda = -c / (dt * ws_sum);
     ws.dv[j] -= w[j] * lambda * n;
     ws.dv[j + 1] += w[j + 1] * lambda * n;
-    if (j == 0) out.first += -lambda * n;
-    if (j == md.m - 1) out.last += lambda * n;
+    ws.node_impulse[j] -= lambda * n;
+    ws.node_impulse[j + 1] += lambda * n;
   }
   for (int i = 0; i < md.n; ++i) v[i] += ws.dv[i];
 }

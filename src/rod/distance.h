@@ -7,18 +7,14 @@
 
 namespace vcsim::internal {
 
-// Constraint impulses on the first and last node (what a held end feels), accumulated.
-struct DistanceImpulses {
-  Vec3 first = Vec3::Zero();
-  Vec3 last = Vec3::Zero();
-};
-
+// Each uses the workspace's effective inverse masses and adds every node's constraint impulse
+// (held nodes included) to ws.node_impulse.
 // One global iteration; false if the factorisation failed (velocities then untouched).
 bool distance_global(const RodModel& md, double dt, std::span<const Vec3> x, std::span<Vec3> v,
-                     RodWorkspace& ws, DistanceImpulses& out);
+                     RodWorkspace& ws);
 void distance_local_gs(const RodModel& md, double dt, std::span<const Vec3> x, std::span<Vec3> v,
-                       RodWorkspace& ws, DistanceImpulses& out);
+                       RodWorkspace& ws);
 void distance_local_jacobi(const RodModel& md, double dt, std::span<const Vec3> x,
-                           std::span<Vec3> v, RodWorkspace& ws, DistanceImpulses& out);
+                           std::span<Vec3> v, RodWorkspace& ws);
 
 }  // namespace vcsim::internal

@@ -257,6 +257,9 @@ void RodWorkspace::resize(const RodModel& md) {
   lambda.assign(md.m, 0.0);
   dv.assign(md.n, Vec3::Zero());
   pred.assign(md.n, Vec3::Zero());
+  inv_mass = md.inv_mass;
+  frame_free.assign(md.m, 1.0);
+  node_impulse.assign(md.n, Vec3::Zero());
 }
 
 Vec3 darboux(const Quat& qa, const Quat& qb, double l) {

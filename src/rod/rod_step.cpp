@@ -131,75 +131,91 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
 
 }  // namespace
 
-void rod_step(const RodModel& md, const RodSettings& s, RodState& st, RodWorkspace& ws,
-              RodProfile* profile) {
-  const double dt = s.dt;
-  const double t0 = profile ? now_us() : 0.0;
+void rod_begin_step(const RodModel& md, RodWorkspace& ws) {
+  std::copy(md.inv_mass.begin(), md.inv_mass.end(), ws.inv_mass.begin());
+  std::fill(ws.frame_free.begin(), ws.frame_free.end(), 1.0);
+  std::fill(ws.node_impulse.begin(), ws.node_impulse.end(), Vec3::Zero());
+}
 
-  // 1. forces and torques
+void rod_forces(const RodModel& md, const RodSettings& s, RodState& st, RodWorkspace& ws) {
   accumulate_forces(md, s, st, ws);
-  const double t1 = profile ? now_us() : 0.0;
+}
 
-  // 2. semi-implicit integration of velocities (held nodes have zero inverse mass)
-  {
-    Vec3* __restrict vel = st.v.data();
-    Vec3* __restrict w = st.omega.data();
-    const Vec3* __restrict f = ws.force.data();
-    const Vec3* __restrict tau = ws.torque.data();
-    const Mat3* __restrict rot = ws.rot.data();
-    const double* __restrict inv_m = md.inv_mass.data();
-    const Vec3* __restrict inertia = md.inertia.data();
-    const Vec3* __restrict inv_inertia = md.inv_inertia.data();
-    for (int i = 0; i < md.n; ++i) vel[i] += (dt * inv_m[i]) * f[i];
-    for (int j = 0; j < md.m; ++j) {
-      const Vec3 tau_body = rot[j].transpose() * tau[j];
-      w[j] += dt * euler_rhs(w[j], inertia[j], inv_inertia[j], tau_body);
-    }
+void rod_integrate_velocities(const RodModel& md, const RodSettings& s, RodState& st,
+                              RodWorkspace& ws) {
+  // Semi-implicit: velocities first from the forces at the current positions (held nodes and
+  // prescribed frames have zero inverse mass and keep their prescribed velocities).
+  const double dt = s.dt;
+  Vec3* __restrict vel = st.v.data();
+  Vec3* __restrict w = st.omega.data();
+  const Vec3* __restrict f = ws.force.data();
+  const Vec3* __restrict tau = ws.torque.data();
+  const Mat3* __restrict rot = ws.rot.data();
+  const double* __restrict inv_m = ws.inv_mass.data();
+  const double* __restrict free = ws.frame_free.data();
+  const Vec3* __restrict inertia = md.inertia.data();
+  const Vec3* __restrict inv_inertia = md.inv_inertia.data();
+  for (int i = 0; i < md.n; ++i) vel[i] += (dt * inv_m[i]) * f[i];
+  for (int j = 0; j < md.m; ++j) {
+    const Vec3 tau_body = rot[j].transpose() * tau[j];
+    w[j] += (dt * free[j]) * euler_rhs(w[j], inertia[j], inv_inertia[j], tau_body);
   }
-  const double t2 = profile ? now_us() : 0.0;
+}
 
-  // 3. constraint iterations (later: concentric coupling, contacts and the drive follow the
-  //    distance solve inside each iteration)
-  DistanceImpulses imp;
-  if (s.distance != DistanceMethod::kPenalty) {
-    for (int it = 0; it < s.iterations; ++it) {
-      switch (s.distance) {
-        case DistanceMethod::kGlobal:
-          if (!distance_global(md, dt, st.x, st.v, ws, imp)) {
-            distance_local_gs(md, dt, st.x, st.v, ws, imp);
-          }
-          break;
-        case DistanceMethod::kLocalGS:
-          distance_local_gs(md, dt, st.x, st.v, ws, imp);
-          break;
-        case DistanceMethod::kLocalJacobi:
-          distance_local_jacobi(md, dt, st.x, st.v, ws, imp);
-          break;
-        case DistanceMethod::kPenalty:
-          break;
-      }
-    }
+void rod_distance_iteration(const RodModel& md, const RodSettings& s, RodState& st,
+                            RodWorkspace& ws) {
+  switch (s.distance) {
+    case DistanceMethod::kGlobal:
+      if (!distance_global(md, s.dt, st.x, st.v, ws)) distance_local_gs(md, s.dt, st.x, st.v, ws);
+      break;
+    case DistanceMethod::kLocalGS:
+      distance_local_gs(md, s.dt, st.x, st.v, ws);
+      break;
+    case DistanceMethod::kLocalJacobi:
+      distance_local_jacobi(md, s.dt, st.x, st.v, ws);
+      break;
+    case DistanceMethod::kPenalty:
+      break;  // stretch is a force (rod_forces)
   }
-  const double t3 = profile ? now_us() : 0.0;
+}
 
-  // 4. positions and frames
-  {
-    Vec3* __restrict x = st.x.data();
-    const Vec3* __restrict v = st.v.data();
-    Quat* __restrict q = st.q.data();
-    const Vec3* __restrict w = st.omega.data();
-    for (int i = 0; i < md.n; ++i) x[i] += dt * v[i];
-    for (int j = 0; j < md.m; ++j) q[j] = integrate_rotation(q[j], w[j], dt);
-  }
-  st.time += dt;
+void rod_integrate_positions(const RodModel& md, const RodSettings& s, RodState& st,
+                             RodWorkspace&) {
+  const double dt = s.dt;
+  Vec3* __restrict x = st.x.data();
+  const Vec3* __restrict v = st.v.data();
+  Quat* __restrict q = st.q.data();
+  const Vec3* __restrict w = st.omega.data();
+  for (int i = 0; i < md.n; ++i) x[i] += dt * v[i];
+  for (int j = 0; j < md.m; ++j) q[j] = integrate_rotation(q[j], w[j], dt);
+}
+
+void rod_end_step(const RodModel& md, const RodSettings& s, RodState& st, const RodWorkspace& ws) {
+  st.time += s.dt;
   ++st.steps;
-
   // What the supports feel: the held node's force balance (internal forces plus constraint
   // impulses over dt), in the rod-on-support sense.
-  st.base_force = md.inv_mass[0] == 0.0 ? Vec3(ws.force[0] + imp.first / dt) : Vec3::Zero();
+  const int last = md.n - 1;
+  st.base_force =
+      md.inv_mass[0] == 0.0 ? Vec3(ws.force[0] + ws.node_impulse[0] / s.dt) : Vec3::Zero();
   st.tip_force =
-      md.inv_mass[md.n - 1] == 0.0 ? Vec3(ws.force[md.n - 1] + imp.last / dt) : Vec3::Zero();
+      md.inv_mass[last] == 0.0 ? Vec3(ws.force[last] + ws.node_impulse[last] / s.dt) : Vec3::Zero();
+}
 
+void rod_step(const RodModel& md, const RodSettings& s, RodState& st, RodWorkspace& ws,
+              RodProfile* profile) {
+  const double t0 = profile ? now_us() : 0.0;
+  rod_begin_step(md, ws);
+  rod_forces(md, s, st, ws);
+  const double t1 = profile ? now_us() : 0.0;
+  rod_integrate_velocities(md, s, st, ws);
+  const double t2 = profile ? now_us() : 0.0;
+  if (s.distance != DistanceMethod::kPenalty) {
+    for (int it = 0; it < s.iterations; ++it) rod_distance_iteration(md, s, st, ws);
+  }
+  const double t3 = profile ? now_us() : 0.0;
+  rod_integrate_positions(md, s, st, ws);
+  rod_end_step(md, s, st, ws);
   if (profile) {
     const double t4 = now_us();
     profile->forces = t1 - t0;
