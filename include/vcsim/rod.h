@@ -176,6 +176,22 @@ RodState make_state(const RodModel& model, const RodDef& def);
 void rod_step(const RodModel& model, const RodSettings& settings, RodState& state, RodWorkspace& ws,
               RodProfile* profile = nullptr);
 
+// The stages rod_step runs, for a solver that interleaves other constraints (contacts, drives,
+// coupling) with the distance solve. Order: begin, forces, integrate_velocities, then
+// `iterations` x (distance_iteration, other constraints), then integrate_positions, end.
+void rod_begin_step(const RodModel& model, RodWorkspace& ws);
+void rod_forces(const RodModel& model, const RodSettings& settings, RodState& state,
+                RodWorkspace& ws);
+void rod_integrate_velocities(const RodModel& model, const RodSettings& settings, RodState& state,
+                              RodWorkspace& ws);
+void rod_distance_iteration(const RodModel& model, const RodSettings& settings, RodState& state,
+                            RodWorkspace& ws);
+void rod_integrate_positions(const RodModel& model, const RodSettings& settings, RodState& state,
+                             RodWorkspace& ws);
+// Time, step count and the support reactions (base/tip force from the held nodes' balance).
+void rod_end_step(const RodModel& model, const RodSettings& settings, RodState& state,
+                  const RodWorkspace& ws);
+
 // Largest step for which explicit integration of the model's stiffest mode stays stable
 // (a conservative estimate; see docs/physics.md).
 double estimate_stable_dt(const RodModel& model, const RodSettings& settings);

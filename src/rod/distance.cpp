@@ -108,7 +108,12 @@ void distance_local_jacobi(const RodModel& md, double dt, std::span<const Vec3> 
     ws.node_impulse[j] -= lambda * n;
     ws.node_impulse[j + 1] += lambda * n;
   }
-  for (int i = 0; i < md.n; ++i) v[i] += ws.dv[i];
+  // Each node averages the corrections of its (one or two) constraints: plain summation
+  // overshoots by up to a factor of two and diverges at one iteration (cf. Mueller et al.'s
+  // position-based dynamics, constraint averaging).
+  v[0] += ws.dv[0];
+  for (int i = 1; i + 1 < md.n; ++i) v[i] += 0.5 * ws.dv[i];
+  v[md.n - 1] += ws.dv[md.n - 1];
 }
 
 }  // namespace vcsim::internal

@@ -1,0 +1,116 @@
+// vcsim solver: an instrument (a rod) driven through an access sheath inside a vessel lumen.
+// One step: drive kinematics, forces, velocities, collision detection, then N block iterations
+// of [global distance solve, contacts with Coulomb friction], then positions
+// (docs/architecture.md).
+#pragma once
+
+#include <vector>
+
+#include "vcsim/collision.h"
+#include "vcsim/rod.h"
+
+namespace vcsim {
+
+// The lumen an instrument moves in (owned elsewhere; refit the tree when the wall moves).
+struct Lumen {
+  const TriangleMesh* mesh = nullptr;
+  const AabbTree* tree = nullptr;
+  // Bound on the wall's speed (m/s), 0 for a static vessel. Lets the contact detection skip
+  // nodes that cannot have reached the wall since their last query.
+  double wall_speed_bound = 0.0;
+};
+
+// Coulomb friction between an instrument and the vessel wall.
+struct ContactMaterial {
+  double mu_static = 0.1;
+  double mu_dynamic = 0.08;
+  void validate(const std::string& source = "contact") const;
+};
+
+// Access sheath: the instrument enters the body at access_point along d3 of `frame`; d1 is the
+// reference for the roll angle. The part outside the body stays on the sheath axis.
+struct Sheath {
+  Vec3 access_point = Vec3::Zero();
+  Quat frame = Quat::Identity();
+  double max_speed = 0.5;  // m/s: translation rate limit (a tracked device cannot jump)
+  double max_spin = 30.0;  // rad/s: rotation rate limit
+};
+
+// What the hand does at the sheath this step.
+struct DriveCommand {
+  enum class Mode { kPosition, kVelocity };
+  Mode mode = Mode::kVelocity;
+  double translation = 0.0;  // position mode: inserted depth (m); velocity mode: m/s
+  double rotation = 0.0;     // position mode: roll (rad); velocity mode: rad/s
+};
+
+struct DriveState {
+  double depth = 0.0;        // inserted length beyond the access point (m)
+  double roll = 0.0;         // rad
+  double depth_rate = 0.0;   // m/s over the last step
+  double roll_rate = 0.0;    // rad/s over the last step
+  double axial_force = 0.0;  // N at the hand along the axis, > 0 when the rod resists insertion
+  double torque = 0.0;       // N m at the hand about the axis, > 0 when it resists positive roll
+  int first_free = 0;        // first node inside the body
+};
+
+// One contact of a node with the wall, solved in the block iterations.
+struct NodeContact {
+  int node = 0;
+  Vec3 normal = Vec3::Zero();    // into the lumen
+  double depth = 0.0;            // > 0 penetration, < 0 speculative gap (m)
+  double lambda_n = 0.0;         // accumulated normal impulse (N s)
+  Vec3 lambda_t = Vec3::Zero();  // accumulated friction impulse (N s)
+};
+
+struct Instrument {
+  RodModel model;
+  RodState state;
+  RodWorkspace ws;
+  Sheath sheath;
+  ContactMaterial contact;
+  DriveState drive;
+  bool driven = true;  // false: a free rod (no sheath), e.g. lying on a surface
+  // Contact scratch (sized once).
+  std::vector<SphereContact> hits;    // (n)
+  std::vector<Vec3> query_centre;     // (n) where each node was last queried
+  std::vector<double> clearance;      // (n) wall-free radius around query_centre (0: unknown)
+  std::vector<NodeContact> contacts;  // active contacts, capacity n
+  std::vector<int> query_nodes;       // (n) nodes queried this step
+  std::vector<Vec3> query_points;     // (n)
+  std::vector<double> query_radii;    // (n)
+  double wall_travel = 0.0;           // wall motion bound accumulated since the queries
+};
+
+// Builds a driven instrument lying on the sheath axis with `depth` inserted. The rod's own
+// boundaries must be free (the drive holds the outside part). Throws InputError for bad input.
+Instrument make_instrument(const RodDef& def, const Sheath& sheath, const ContactMaterial& contact,
+                           double depth, double roll = 0.0);
+// A free rod (no drive), e.g. for friction experiments.
+Instrument make_free_instrument(const RodDef& def, const ContactMaterial& contact);
+
+struct SolverSettings {
+  RodSettings rod;
+  bool collisions = true;
+  double contact_margin = 2e-4;         // m, speculative: contacts within this gap are solved
+  double penetration_correction = 0.5;  // fraction of a penetration removed per step
+  double coherence_margin = 0.6e-3;     // m, query radius beyond contact reach (for skipping)
+  void validate(const std::string& source = "solver") const;
+};
+
+struct StepProfile {
+  double drive = 0, forces = 0, integrate_velocities = 0, collision = 0, constraints = 0,
+         distance = 0, contacts = 0, integrate_positions = 0, total = 0;  // microseconds
+  int num_contacts = 0;
+  int num_queries = 0;
+};
+
+// One step of an instrument in a lumen (lumen.mesh may be null: no collisions). No heap
+// allocation once warm.
+void instrument_step(Instrument& inst, const Lumen& lumen, const SolverSettings& settings,
+                     const DriveCommand& command, StepProfile* profile = nullptr);
+
+// Diagnostics: the centreline's arc length inside the body and its rest length.
+double compression(const Instrument& inst);  // (rest - arc) / rest over the whole rod
+
+}  // namespace vcsim

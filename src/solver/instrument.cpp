@@ -1,0 +1,325 @@
+// An instrument driven through a sheath into a lumen: the insertion drive, collision detection
+// with per-node coherence, and contacts with Coulomb friction inside the block iterations
+// (physics.md section 6).
+#include <algorithm>
+#include <cmath>
+
+#include "vcsim/solver.h"
+
+namespace vcsim {
+
+namespace {
+
+double clamp_abs(double v, double limit) {
+  return std::clamp(v, -limit, limit);
+}
+
+// Node radius: the largest outer radius of the adjacent edges.
+double node_radius(const RodModel& md, int i) {
+  const double a = i > 0 ? md.outer_radius[i - 1] : 0.0;
+  const double b = i < md.m ? md.outer_radius[i] : 0.0;
+  return std::max(a, b);
+}
+
+// --- insertion drive ---------------------------------------------------------------------------
+
+// Advances depth and roll from the command and holds every node outside the body on the sheath
+// axis: node i (arc length s_i from the proximal end) is outside while s_i <= L - depth, at
+// access_point - (L - depth - s_i) axis. Frames between two held nodes are turned by the roll.
+void drive_begin(Instrument& inst, const DriveCommand& cmd, double dt) {
+  const RodModel& md = inst.model;
+  RodState& st = inst.state;
+  RodWorkspace& ws = inst.ws;
+  DriveState& dr = inst.drive;
+  const Sheath& sh = inst.sheath;
+
+  double rate = cmd.mode == DriveCommand::Mode::kPosition ? (cmd.translation - dr.depth) / dt
+                                                          : cmd.translation;
+  double spin =
+      cmd.mode == DriveCommand::Mode::kPosition ? (cmd.rotation - dr.roll) / dt : cmd.rotation;
+  rate = clamp_abs(rate, sh.max_speed);
+  spin = clamp_abs(spin, sh.max_spin);
+  // Keep the first edge outside so the hand always holds a frame (and can turn the rod).
+  const double max_depth = md.length - md.rest_length[0];
+  const double depth = std::clamp(dr.depth + dt * rate, 0.0, max_depth);
+  dr.depth_rate = (depth - dr.depth) / dt;
+  dr.depth = depth;
+  dr.roll_rate = spin;
+  dr.roll += dt * spin;
+
+  const Vec3 axis = sh.frame * Vec3::UnitZ();
+  const double outside = md.length - depth;  // arc length still outside the body
+  int first_free = md.n;
+  for (int i = 0; i < md.n; ++i) {
+    if (md.node_s[i] > outside + 1e-12) {
+      first_free = i;
+      break;
+    }
+    // Held: the velocity that puts the node on the axis at the end of this step.
+    const Vec3 target = sh.access_point - (outside - md.node_s[i]) * axis;
+    st.v[i] = (target - st.x[i]) / dt;
+    ws.inv_mass[i] = 0.0;
+  }
+  dr.first_free = first_free;
+  for (int j = 0; j + 1 < first_free && j < md.m; ++j) {
+    ws.frame_free[j] = 0.0;
+    st.omega[j] = Vec3(0.0, 0.0, spin);  // body frame: d3 is the axis
+  }
+}
+
+// After positions: held frames take the sheath frame turned by the roll (exactly, no drift).
+void drive_end(Instrument& inst) {
+  const Quat held = (Quat(Eigen::AngleAxisd(inst.drive.roll, inst.sheath.frame * Vec3::UnitZ())) *
+                     inst.sheath.frame)
+                        .normalized();
+  for (int j = 0; j + 1 < inst.drive.first_free && j < inst.model.m; ++j) inst.state.q[j] = held;
+}
+
+// Force and torque at the hand: what the rest of the rod exerts on the held part (internal
+// forces and constraint impulses on held nodes and frames), gravity and applied loads excluded.
+void drive_feedback(Instrument& inst, const RodSettings& s) {
+  const RodModel& md = inst.model;
+  const RodWorkspace& ws = inst.ws;
+  const RodState& st = inst.state;
+  Vec3 f = Vec3::Zero(), tau = Vec3::Zero();
+  for (int i = 0; i < inst.drive.first_free; ++i) {
+    f += ws.force[i] - md.node_mass[i] * s.gravity - st.f_ext[i] + ws.node_impulse[i] / s.dt;
+  }
+  for (int j = 0; j + 1 < inst.drive.first_free && j < md.m; ++j) tau += ws.torque[j];
+  const Vec3 axis = inst.sheath.frame * Vec3::UnitZ();
+  inst.drive.axial_force = -f.dot(axis);
+  inst.drive.torque = -tau.dot(axis);
+}
+
+// --- contacts ------------------------------------------------------------------------------------
+
+// Finds the contacts of the free nodes. A node is queried with a radius reaching
+// coherence_margin beyond its contact reach; if that finds no wall, the node is skipped until it
+// (or the wall) has moved far enough to close the gap.
+void detect_contacts(Instrument& inst, const Lumen& lumen, const SolverSettings& set,
+                     StepProfile* prof) {
+  const RodModel& md = inst.model;
+  const RodState& st = inst.state;
+  const double dt = set.rod.dt;
+  inst.contacts.clear();
+  int nq = 0;
+  inst.wall_travel += lumen.wall_speed_bound * dt;
+  const int first = inst.driven ? inst.drive.first_free : 0;
+  for (int i = first; i < md.n; ++i) {
+    if (inst.ws.inv_mass[i] == 0.0) continue;
+    const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt;
+    if (inst.clearance[i] > 0.0) {
+      const double moved = (st.x[i] - inst.query_centre[i]).norm() + inst.wall_travel;
+      if (moved + reach < inst.clearance[i]) continue;  // the wall cannot be within reach
+    }
+    inst.query_nodes[nq] = i;
+    inst.query_points[nq] = st.x[i];
+    inst.query_radii[nq] = reach + set.coherence_margin;
+    ++nq;
+  }
+  if (nq == 0) return;
+  if (inst.wall_travel > 0.0) {
+    // Clearances measured before the wall moved are stale for every node: start afresh.
+    std::fill(inst.clearance.begin(), inst.clearance.end(), 0.0);
+    inst.wall_travel = 0.0;
+  }
+  lumen.tree->query_spheres(*lumen.mesh, std::span<const Vec3>(inst.query_points.data(), nq),
+                            std::span<const double>(inst.query_radii.data(), nq),
+                            std::span<SphereContact>(inst.hits.data(), nq));
+  for (int k = 0; k < nq; ++k) {
+    const int i = inst.query_nodes[k];
+    const SphereContact& h = inst.hits[k];
+    const double r = node_radius(md, i);
+    inst.query_centre[i] = st.x[i];
+    if (!h.touching) {
+      inst.clearance[i] = inst.query_radii[k];
+      continue;
+    }
+    const double depth = h.centre_outside ? r + h.distance : r - h.distance;
+    const double reach = inst.query_radii[k] - set.coherence_margin - r;
+    if (!h.centre_outside && depth < -reach) {
+      inst.clearance[i] = h.distance;  // near, but not within reach this step
+      continue;
+    }
+    inst.clearance[i] = 0.0;  // in contact: query again next step
+    inst.contacts.push_back({i, h.normal, depth, 0.0, Vec3::Zero()});
+  }
+  if (prof) prof->num_queries = nq;
+}
+
+// One projected Gauss-Seidel sweep over the contacts: non-penetration (a velocity that closes a
+// speculative gap exactly, or removes a fraction of a penetration), then the friction impulse
+// clamped to the Coulomb cone (static cone; beyond it, sliding at mu_dynamic).
+void solve_contacts(Instrument& inst, const SolverSettings& set) {
+  const double dt = set.rod.dt;
+  const double beta = set.penetration_correction;
+  const double mu_s = inst.contact.mu_static, mu_d = inst.contact.mu_dynamic;
+  for (NodeContact& c : inst.contacts) {
+    const double w = inst.ws.inv_mass[c.node];
+    Vec3& v = inst.state.v[c.node];
+    const double target = c.depth > 0.0 ? beta * c.depth / dt : c.depth / dt;
+    const double vn = v.dot(c.normal);
+    const double ln = std::max(0.0, c.lambda_n + (target - vn) / w);
+    v += (w * (ln - c.lambda_n)) * c.normal;
+    c.lambda_n = ln;
+    const Vec3 vt = v - v.dot(c.normal) * c.normal;
+    Vec3 lt = c.lambda_t - vt / w;
+    const double lt_norm = lt.norm();
+    if (lt_norm > mu_s * ln) lt *= (mu_d * ln) / lt_norm;
+    v += w * (lt - c.lambda_t);
+    c.lambda_t = lt;
+  }
+}
+
+// The penetration fix-up velocity moved the node out; it must not stay as a bounce.
+void remove_contact_bias(Instrument& inst, const SolverSettings& set) {
+  const double dt = set.rod.dt;
+  for (const NodeContact& c : inst.contacts) {
+    if (c.depth <= 0.0) continue;
+    Vec3& v = inst.state.v[c.node];
+    const double vn = v.dot(c.normal);
+    const double bias = set.penetration_correction * c.depth / dt;
+    if (vn > 0.0) v -= std::min(vn, bias) * c.normal;
+  }
+}
+
+void size_scratch(Instrument& inst) {
+  const int n = inst.model.n;
+  inst.hits.assign(n, SphereContact{});
+  inst.query_centre.assign(n, Vec3::Zero());
+  inst.clearance.assign(n, 0.0);
+  inst.contacts.clear();
+  inst.contacts.reserve(n);
+  inst.query_nodes.assign(n, 0);
+  inst.query_points.assign(n, Vec3::Zero());
+  inst.query_radii.assign(n, 0.0);
+  inst.ws.resize(inst.model);
+}
+
+}  // namespace
+
+void ContactMaterial::validate(const std::string& source) const {
+  require_nonnegative(mu_static, source, "mu_static");
+  require_nonnegative(mu_dynamic, source, "mu_dynamic");
+  if (mu_dynamic > mu_static) {
+    throw InputError(source, "mu_dynamic", "expected at most mu_static");
+  }
+}
+
+void SolverSettings::validate(const std::string& source) const {
+  rod.validate(source);
+  require_nonnegative(contact_margin, source, "contact_margin");
+  require_in_range(penetration_correction, 0.0, 1.0, source, "penetration_correction");
+  require_nonnegative(coherence_margin, source, "coherence_margin");
+}
+
+Instrument make_instrument(const RodDef& def_in, const Sheath& sheath,
+                           const ContactMaterial& contact, double depth, double roll) {
+  RodDef def = def_in;
+  if (def.base != BoundaryKind::kFree || def.tip != BoundaryKind::kFree) {
+    throw InputError("instrument", "boundary", "expected free ends (the drive holds the rod)");
+  }
+  contact.validate("instrument");
+  require_nonnegative(depth, "instrument", "depth");
+  require_finite(roll, "instrument", "roll");
+  for (int k = 0; k < 3; ++k) require_finite(sheath.access_point[k], "sheath", "access_point");
+  require_positive(sheath.max_speed, "sheath", "max_speed");
+  require_positive(sheath.max_spin, "sheath", "max_spin");
+  // Lay the rod on the sheath axis with `depth` beyond the access point.
+  const Quat frame = sheath.frame.normalized();
+  const Vec3 axis = frame * Vec3::UnitZ();
+  def.base_orientation = (Quat(Eigen::AngleAxisd(roll, axis)) * frame).normalized();
+  def.base_position = sheath.access_point - (def.length - depth) * axis;
+  def.start_in_rest_shape = false;
+  Instrument inst;
+  inst.model = build_rod(def);
+  inst.sheath = sheath;
+  inst.contact = contact;
+  if (depth > def.length - inst.model.rest_length[0]) {
+    throw InputError("instrument", "depth", "expected at most the length less one segment");
+  }
+  inst.sheath.frame = frame;
+  inst.state = make_state(inst.model, def);
+  inst.drive.depth = depth;
+  inst.drive.roll = roll;
+  size_scratch(inst);
+  return inst;
+}
+
+Instrument make_free_instrument(const RodDef& def, const ContactMaterial& contact) {
+  contact.validate("instrument");
+  Instrument inst;
+  inst.model = build_rod(def);
+  inst.contact = contact;
+  inst.driven = false;
+  inst.state = make_state(inst.model, def);
+  size_scratch(inst);
+  return inst;
+}
+
+void instrument_step(Instrument& inst, const Lumen& lumen, const SolverSettings& set,
+                     const DriveCommand& cmd, StepProfile* prof) {
+  const RodModel& md = inst.model;
+  const RodSettings& rs = set.rod;
+  RodState& st = inst.state;
+  RodWorkspace& ws = inst.ws;
+  const bool collide = set.collisions && lumen.mesh != nullptr && lumen.tree != nullptr;
+  const double t0 = prof ? now_us() : 0.0;
+
+  // 1. inputs: the drive holds the outside part
+  rod_begin_step(md, ws);
+  if (inst.driven) drive_begin(inst, cmd, rs.dt);
+  const double t1 = prof ? now_us() : 0.0;
+  // 2. forces, 3. velocities
+  rod_forces(md, rs, st, ws);
+  const double t2 = prof ? now_us() : 0.0;
+  rod_integrate_velocities(md, rs, st, ws);
+  const double t3 = prof ? now_us() : 0.0;
+  // 4. collision detection
+  if (collide) {
+    detect_contacts(inst, lumen, set, prof);
+  } else {
+    inst.contacts.clear();
+  }
+  const double t4 = prof ? now_us() : 0.0;
+  // 5. block iterations: distance chain, then contacts with friction
+  double t_dist = 0.0, t_cont = 0.0;
+  for (int it = 0; it < rs.iterations; ++it) {
+    const double a = prof ? now_us() : 0.0;
+    if (rs.distance != DistanceMethod::kPenalty) rod_distance_iteration(md, rs, st, ws);
+    const double b = prof ? now_us() : 0.0;
+    solve_contacts(inst, set);
+    if (prof) {
+      t_dist += b - a;
+      t_cont += now_us() - b;
+    }
+  }
+  const double t5 = prof ? now_us() : 0.0;
+  // 6. positions
+  rod_integrate_positions(md, rs, st, ws);
+  remove_contact_bias(inst, set);
+  if (inst.driven) {
+    drive_end(inst);
+    drive_feedback(inst, rs);
+  }
+  rod_end_step(md, rs, st, ws);
+  if (prof) {
+    const double t6 = now_us();
+    prof->drive = t1 - t0;
+    prof->forces = t2 - t1;
+    prof->integrate_velocities = t3 - t2;
+    prof->collision = t4 - t3;
+    prof->constraints = t5 - t4;
+    prof->distance = t_dist;
+    prof->contacts = t_cont;
+    prof->integrate_positions = t6 - t5;
+    prof->total = t6 - t0;
+    prof->num_contacts = static_cast<int>(inst.contacts.size());
+  }
+}
+
+double compression(const Instrument& inst) {
+  return (inst.model.length - centreline_length(inst.state)) / inst.model.length;
+}
+
+}  // namespace vcsim

@@ -1,0 +1,64 @@
+// A warm instrument step with contacts allocates nothing (replaced global operator new).
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cstdlib>
+#include <new>
+
+#include "vcsim/solver.h"
+
+namespace {
+std::atomic<long> g_allocations{0};
+}
+
+#ifndef VCSIM_SANITIZE
+void* operator new(std::size_t n) {
+  g_allocations.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept {
+  std::free(p);
+}
+void operator delete(void* p, std::size_t) noexcept {
+  std::free(p);
+}
+#endif
+
+using namespace vcsim;
+
+TEST(SolverNoAlloc, WarmInstrumentStepWithContactsAllocatesNothing) {
+#ifdef VCSIM_SANITIZE
+  GTEST_SKIP() << "the sanitizer runtime owns operator new";
+#else
+  BentTubeSpec spec;
+  spec.radius = 2e-3;
+  spec.cap_end = true;
+  TriangleMesh mesh = make_bent_tube(spec);
+  check_and_repair(mesh, "tube");
+  AabbTree tree;
+  tree.build(mesh);
+  RodDef d;
+  d.length = 0.08;
+  d.segments = 60;
+  d.outer_radius = 0.45e-3;
+  d.base = BoundaryKind::kFree;
+  d.density = 1e6;
+  Instrument inst =
+      make_instrument(d, Sheath{}, ContactMaterial{}, 0.015);  // tip 5 mm before the bend
+  SolverSettings s;
+  s.rod.dt = 2e-4;
+  s.rod.drag = 20;
+  DriveCommand c{DriveCommand::Mode::kVelocity, 0.1, 1.0};
+  StepProfile prof;
+  for (int k = 0; k < 300; ++k) instrument_step(inst, Lumen{&mesh, &tree, 0.0}, s, c, &prof);
+  const long before = g_allocations.load();
+  int contacts = 0;
+  for (int k = 0; k < 300; ++k) {
+    instrument_step(inst, Lumen{&mesh, &tree, 0.0}, s, c, &prof);
+    contacts = std::max(contacts, prof.num_contacts);
+  }
+  EXPECT_EQ(g_allocations.load() - before, 0);
+  EXPECT_GT(contacts, 0) << "the test must exercise contacts";
+#endif
+}
