@@ -4,6 +4,7 @@
 // (docs/architecture.md).
 #pragma once
 
+#include <span>
 #include <vector>
 
 #include "vcsim/collision.h"
@@ -72,14 +73,15 @@ struct Instrument {
   DriveState drive;
   bool driven = true;  // false: a free rod (no sheath), e.g. lying on a surface
   // Contact scratch (sized once).
-  std::vector<SphereContact> hits;    // (n)
-  std::vector<Vec3> query_centre;     // (n) where each node was last queried
-  std::vector<double> clearance;      // (n) wall-free radius around query_centre (0: unknown)
-  std::vector<NodeContact> contacts;  // active contacts, capacity n
-  std::vector<int> query_nodes;       // (n) nodes queried this step
-  std::vector<Vec3> query_points;     // (n)
-  std::vector<double> query_radii;    // (n)
-  double wall_travel = 0.0;           // wall motion bound accumulated since the queries
+  std::vector<SphereContact> hits;      // (n)
+  std::vector<Vec3> query_centre;       // (n) where each node was last queried
+  std::vector<double> clearance;        // (n) wall-free radius around query_centre (0: unknown)
+  std::vector<NodeContact> contacts;    // active contacts, capacity n
+  std::vector<int> query_nodes;         // (n) nodes queried this step
+  std::vector<Vec3> query_points;       // (n)
+  std::vector<double> query_radii;      // (n)
+  std::vector<unsigned char> sheathed;  // (n) 1: inside another instrument's lumen this step
+  double wall_travel = 0.0;             // wall motion bound accumulated since the queries
 };
 
 // Builds a driven instrument lying on the sheath axis with `depth` inserted. The rod's own
@@ -109,6 +111,36 @@ struct StepProfile {
 // allocation once warm.
 void instrument_step(Instrument& inst, const Lumen& lumen, const SolverSettings& settings,
                      const DriveCommand& command, StepProfile* profile = nullptr);
+
+// One wire node held inside the outer instrument's lumen (concentric constraint).
+struct CoaxialContact {
+  int node = 0;                // inner instrument's node
+  int segment = 0;             // outer instrument's edge: nodes segment, segment + 1
+  double t = 0.0;              // position of the projection on that edge (0 .. 1)
+  Vec3 normal = Vec3::Zero();  // from the outer centreline toward the inner node
+  double excess = 0.0;         // radial offset beyond the clearance (> 0 violated, < 0 gap), m
+  double lambda_n = 0.0;
+  Vec3 lambda_t = Vec3::Zero();
+};
+
+// An inner instrument (wire) running in the lumen of an outer one (catheter). Both enter through
+// the same sheath. Wire nodes whose inserted arc length is within the catheter's inserted depth
+// are held within the clearance (ID - wire OD) / 2 by impulses perpendicular to the catheter,
+// shared by the two nearest catheter nodes in proportion to their distance (VCSim3's concentric
+// constraints), with optional lumen friction; they skip the wall collision.
+struct Coupling {
+  int inner = 0;
+  int outer = 1;
+  double mu = 0.04;                      // wire-in-catheter lumen friction (clinical.md)
+  std::vector<CoaxialContact> contacts;  // scratch, capacity = inner nodes
+  double clearance = 0.0;                // m, set by step_instruments
+};
+
+// One step of several instruments in one lumen with their couplings (commands[i] drives
+// instruments[i]). profile, if given, receives the sum over instruments.
+void step_instruments(std::span<Instrument> instruments, std::span<Coupling> couplings,
+                      const Lumen& lumen, const SolverSettings& settings,
+                      std::span<const DriveCommand> commands, StepProfile* profile = nullptr);
 
 // Diagnostics: the centreline's arc length inside the body and its rest length.
 double compression(const Instrument& inst);  // (rest - arc) / rest over the whole rod

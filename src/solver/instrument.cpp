@@ -106,7 +106,7 @@ void detect_contacts(Instrument& inst, const Lumen& lumen, const SolverSettings&
   inst.wall_travel += lumen.wall_speed_bound * dt;
   const int first = inst.driven ? inst.drive.first_free : 0;
   for (int i = first; i < md.n; ++i) {
-    if (inst.ws.inv_mass[i] == 0.0) continue;
+    if (inst.ws.inv_mass[i] == 0.0 || inst.sheathed[i]) continue;
     const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt;
     if (inst.clearance[i] > 0.0) {
       const double moved = (st.x[i] - inst.query_centre[i]).norm() + inst.wall_travel;
@@ -144,7 +144,7 @@ void detect_contacts(Instrument& inst, const Lumen& lumen, const SolverSettings&
     inst.clearance[i] = 0.0;  // in contact: query again next step
     inst.contacts.push_back({i, h.normal, depth, 0.0, Vec3::Zero()});
   }
-  if (prof) prof->num_queries = nq;
+  if (prof) prof->num_queries += nq;
 }
 
 // One projected Gauss-Seidel sweep over the contacts: non-penetration (a velocity that closes a
@@ -183,6 +183,103 @@ void remove_contact_bias(Instrument& inst, const SolverSettings& set) {
   }
 }
 
+// --- coaxial coupling ---------------------------------------------------------------------------
+
+// Closest point on the outer instrument's edge k to p: parameter t in [0, 1] and squared
+// distance.
+double project_on_edge(const RodState& outer, int k, const Vec3& p, double& t) {
+  const Vec3& a = outer.x[k];
+  const Vec3 ab = outer.x[k + 1] - a;
+  t = std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0);
+  return (a + t * ab - p).squaredNorm();
+}
+
+// Pairs every free inner node inside the outer instrument's inserted length with the outer edge
+// at the same inserted arc length (refined to the geometrically closest neighbour) and records
+// the radial excess beyond the clearance. Marks those inner nodes sheathed (no wall query).
+void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
+                     const SolverSettings& set) {
+  cp.contacts.clear();
+  std::fill(in.sheathed.begin(), in.sheathed.end(), 0);
+  const RodModel& mi = in.model;
+  const RodModel& mo = out.model;
+  cp.clearance = std::max(0.0, mo.inner_radius[mo.m - 1] - mi.outer_radius[0]);
+  const double in_offset = mi.length - in.drive.depth;    // s at the access point, inner
+  const double out_offset = mo.length - out.drive.depth;  // s at the access point, outer
+  const double dt = set.rod.dt;
+  int k = 0;
+  for (int i = in.drive.first_free; i < mi.n; ++i) {
+    const double sigma = mi.node_s[i] - in_offset;  // inserted arc length of this node
+    if (sigma <= 0.0 || sigma > out.drive.depth) continue;
+    in.sheathed[i] = 1;
+    const double s_out = sigma + out_offset;
+    while (k + 1 < mo.m && mo.node_s[k + 1] <= s_out) ++k;
+    const Vec3& p = in.state.x[i];
+    double t = 0.0, best_t = 0.0;
+    int best = k;
+    double best_d2 = project_on_edge(out.state, k, p, best_t);
+    for (int kk : {k - 1, k + 1}) {
+      if (kk < 0 || kk >= mo.m) continue;
+      const double d2 = project_on_edge(out.state, kk, p, t);
+      if (d2 < best_d2) {
+        best_d2 = d2;
+        best = kk;
+        best_t = t;
+      }
+    }
+    const Vec3 a = out.state.x[best], b = out.state.x[best + 1];
+    const Vec3 tangent = (b - a).normalized();
+    Vec3 off = p - (a + best_t * (b - a));
+    off -= off.dot(tangent) * tangent;
+    const double r = off.norm();
+    if (r < 1e-12) continue;
+    const Vec3 rel_v =
+        in.state.v[i] - ((1 - best_t) * out.state.v[best] + best_t * out.state.v[best + 1]);
+    const double excess = r - cp.clearance;
+    if (excess < -(set.contact_margin + rel_v.norm() * dt)) continue;
+    cp.contacts.push_back({i, best, best_t, off / r, excess, 0.0, Vec3::Zero()});
+  }
+}
+
+// One projected Gauss-Seidel sweep over the concentric constraints: the inner node may not move
+// further than the clearance from the outer centreline; lumen friction on the relative sliding.
+void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverSettings& set) {
+  const double dt = set.rod.dt;
+  const double beta = set.penetration_correction;
+  for (CoaxialContact& c : cp.contacts) {
+    const double wp = in.ws.inv_mass[c.node];
+    const double wa = out.ws.inv_mass[c.segment] * (1 - c.t);
+    const double wb = out.ws.inv_mass[c.segment + 1] * c.t;
+    const double k = wp + (1 - c.t) * wa + c.t * wb;
+    if (k == 0.0) continue;
+    Vec3& vp = in.state.v[c.node];
+    Vec3& va = out.state.v[c.segment];
+    Vec3& vb = out.state.v[c.segment + 1];
+    auto apply = [&](const Vec3& impulse) {  // impulse on the inner node, reaction on the outer
+      vp += wp * impulse;
+      va -= wa * impulse;
+      vb -= wb * impulse;
+      in.ws.node_impulse[c.node] += impulse;
+      out.ws.node_impulse[c.segment] -= (1 - c.t) * impulse;
+      out.ws.node_impulse[c.segment + 1] -= c.t * impulse;
+    };
+    // Radial: v_rel . n <= -excess / dt (a fraction beta of a violation).
+    const double target = c.excess > 0.0 ? -beta * c.excess / dt : -c.excess / dt;
+    const Vec3 rel = vp - ((1 - c.t) * va + c.t * vb);
+    const double ln = std::max(0.0, c.lambda_n + (rel.dot(c.normal) - target) / k);
+    apply(-(ln - c.lambda_n) * c.normal);
+    c.lambda_n = ln;
+    if (cp.mu <= 0.0) continue;
+    const Vec3 rel2 = vp - ((1 - c.t) * va + c.t * vb);
+    const Vec3 slip = rel2 - rel2.dot(c.normal) * c.normal;
+    Vec3 lt = c.lambda_t + slip / k;
+    const double lt_norm = lt.norm();
+    if (lt_norm > cp.mu * ln) lt *= cp.mu * ln / lt_norm;
+    apply(-(lt - c.lambda_t));
+    c.lambda_t = lt;
+  }
+}
+
 void size_scratch(Instrument& inst) {
   const int n = inst.model.n;
   inst.hits.assign(n, SphereContact{});
@@ -193,6 +290,7 @@ void size_scratch(Instrument& inst) {
   inst.query_nodes.assign(n, 0);
   inst.query_points.assign(n, Vec3::Zero());
   inst.query_radii.assign(n, 0.0);
+  inst.sheathed.assign(n, 0);
   inst.ws.resize(inst.model);
 }
 
@@ -257,65 +355,83 @@ Instrument make_free_instrument(const RodDef& def, const ContactMaterial& contac
   return inst;
 }
 
-void instrument_step(Instrument& inst, const Lumen& lumen, const SolverSettings& set,
-                     const DriveCommand& cmd, StepProfile* prof) {
-  const RodModel& md = inst.model;
+void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings,
+                      const Lumen& lumen, const SolverSettings& set,
+                      std::span<const DriveCommand> cmds, StepProfile* prof) {
   const RodSettings& rs = set.rod;
-  RodState& st = inst.state;
-  RodWorkspace& ws = inst.ws;
   const bool collide = set.collisions && lumen.mesh != nullptr && lumen.tree != nullptr;
-  const double t0 = prof ? now_us() : 0.0;
+  StepProfile p;
+  auto tick = [&]() { return prof ? now_us() : 0.0; };
+  const double t0 = tick();
 
   // 1. inputs: the drive holds the outside part
-  rod_begin_step(md, ws);
-  if (inst.driven) drive_begin(inst, cmd, rs.dt);
-  const double t1 = prof ? now_us() : 0.0;
-  // 2. forces, 3. velocities
-  rod_forces(md, rs, st, ws);
-  const double t2 = prof ? now_us() : 0.0;
-  rod_integrate_velocities(md, rs, st, ws);
-  const double t3 = prof ? now_us() : 0.0;
-  // 4. collision detection
-  if (collide) {
-    detect_contacts(inst, lumen, set, prof);
-  } else {
-    inst.contacts.clear();
+  for (std::size_t k = 0; k < insts.size(); ++k) {
+    rod_begin_step(insts[k].model, insts[k].ws);
+    if (insts[k].driven) drive_begin(insts[k], cmds[k], rs.dt);
   }
-  const double t4 = prof ? now_us() : 0.0;
-  // 5. block iterations: distance chain, then contacts with friction
-  double t_dist = 0.0, t_cont = 0.0;
-  for (int it = 0; it < rs.iterations; ++it) {
-    const double a = prof ? now_us() : 0.0;
-    if (rs.distance != DistanceMethod::kPenalty) rod_distance_iteration(md, rs, st, ws);
-    const double b = prof ? now_us() : 0.0;
-    solve_contacts(inst, set);
-    if (prof) {
-      t_dist += b - a;
-      t_cont += now_us() - b;
+  const double t1 = tick();
+  // 2. forces, 3. velocities
+  for (Instrument& in : insts) rod_forces(in.model, rs, in.state, in.ws);
+  const double t2 = tick();
+  for (Instrument& in : insts) rod_integrate_velocities(in.model, rs, in.state, in.ws);
+  const double t3 = tick();
+  // 4. collision detection: coupling first (sheathed wire nodes skip the wall)
+  for (Coupling& c : couplings) detect_coupling(c, insts[c.inner], insts[c.outer], set);
+  for (Instrument& in : insts) {
+    if (collide) {
+      detect_contacts(in, lumen, set, &p);
+    } else {
+      in.contacts.clear();
     }
   }
-  const double t5 = prof ? now_us() : 0.0;
+  const double t4 = tick();
+  // 5. block iterations: distance chains, coaxial coupling, wall contacts with friction
+  double t_dist = 0.0, t_cont = 0.0;
+  for (int it = 0; it < rs.iterations; ++it) {
+    const double a = tick();
+    if (rs.distance != DistanceMethod::kPenalty) {
+      for (Instrument& in : insts) rod_distance_iteration(in.model, rs, in.state, in.ws);
+    }
+    const double b = tick();
+    for (Coupling& c : couplings) solve_coupling(c, insts[c.inner], insts[c.outer], set);
+    for (Instrument& in : insts) solve_contacts(in, set);
+    if (prof) {
+      t_dist += b - a;
+      t_cont += tick() - b;
+    }
+  }
+  const double t5 = tick();
   // 6. positions
-  rod_integrate_positions(md, rs, st, ws);
-  remove_contact_bias(inst, set);
-  if (inst.driven) {
-    drive_end(inst);
-    drive_feedback(inst, rs);
+  for (Instrument& in : insts) {
+    rod_integrate_positions(in.model, rs, in.state, in.ws);
+    remove_contact_bias(in, set);
+    if (in.driven) {
+      drive_end(in);
+      drive_feedback(in, rs);
+    }
+    rod_end_step(in.model, rs, in.state, in.ws);
   }
-  rod_end_step(md, rs, st, ws);
   if (prof) {
-    const double t6 = now_us();
-    prof->drive = t1 - t0;
-    prof->forces = t2 - t1;
-    prof->integrate_velocities = t3 - t2;
-    prof->collision = t4 - t3;
-    prof->constraints = t5 - t4;
-    prof->distance = t_dist;
-    prof->contacts = t_cont;
-    prof->integrate_positions = t6 - t5;
-    prof->total = t6 - t0;
-    prof->num_contacts = static_cast<int>(inst.contacts.size());
+    const double t6 = tick();
+    p.drive = t1 - t0;
+    p.forces = t2 - t1;
+    p.integrate_velocities = t3 - t2;
+    p.collision = t4 - t3;
+    p.constraints = t5 - t4;
+    p.distance = t_dist;
+    p.contacts = t_cont;
+    p.integrate_positions = t6 - t5;
+    p.total = t6 - t0;
+    p.num_contacts = 0;
+    for (const Instrument& in : insts) p.num_contacts += static_cast<int>(in.contacts.size());
+    *prof = p;
   }
+}
+
+void instrument_step(Instrument& inst, const Lumen& lumen, const SolverSettings& set,
+                     const DriveCommand& cmd, StepProfile* prof) {
+  step_instruments(std::span<Instrument>(&inst, 1), {}, lumen, set,
+                   std::span<const DriveCommand>(&cmd, 1), prof);
 }
 
 double compression(const Instrument& inst) {
