@@ -1,0 +1,153 @@
+// `vcsim instruments list|show NAME`: the catalogue in data/instruments (Markdown or --json).
+#include <cmath>
+#include <cstdio>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <numbers>
+
+#include "commands.h"
+#include "vcsim/instruments.h"
+
+namespace vcsim::app {
+
+namespace {
+
+std::string fmt(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.4g", v);
+  return buf;
+}
+
+// The file's units (mm, GPa, deg, 1/cm), so that the output reads like the catalogue file.
+nlohmann::json to_json(const InstrumentSpec& s, const Discretisation& disc) {
+  constexpr double kDeg = 180.0 / std::numbers::pi;
+  nlohmann::json sections = nlohmann::json::array();
+  for (const auto& t : s.tip_shape) {
+    if (t.kind == TipSection::Kind::kStraight) {
+      sections.push_back({{"straight_mm", t.length * 1e3}});
+    } else {
+      sections.push_back({{"arc",
+                           {{"radius_mm", t.radius * 1e3},
+                            {"angle_deg", t.angle * kDeg},
+                            {"plane_deg", t.plane * kDeg}}}});
+    }
+  }
+  const SegmentPlan plan = plan_segments(s.length, disc);
+  return {{"name", s.name},
+          {"description", s.description},
+          {"kind", to_string(s.kind)},
+          {"file", s.source},
+          {"length_mm", s.length * 1e3},
+          {"od_mm", s.outer_diameter * 1e3},
+          {"id_mm", s.inner_diameter * 1e3},
+          {"youngs_modulus_gpa", s.youngs_modulus * 1e-9},
+          {"tip_length_mm", s.tip_length * 1e3},
+          {"tip_modulus_ratio", s.tip_modulus_ratio},
+          {"poisson", s.poisson},
+          {"density_kg_m3", s.density},
+          {"tip_sections", sections},
+          {"friction",
+           {{"vessel_static", s.friction.vessel_static},
+            {"vessel_dynamic", s.friction.vessel_dynamic},
+            {"lumen", s.friction.lumen}}},
+          {"radiopacity",
+           {{"material", s.radiopacity.material},
+            {"attenuation_60kev_per_cm", s.radiopacity.attenuation_60kev * 1e-2},
+            {"attenuation_80kev_per_cm", s.radiopacity.attenuation_80kev * 1e-2},
+            {"coil_length_mm", s.radiopacity.coil_length * 1e3},
+            {"markers_mm_from_tip",
+             [&] {
+               nlohmann::json m = nlohmann::json::array();
+               for (double d : s.radiopacity.markers) m.push_back(d * 1e3);
+               return m;
+             }()}}},
+          {"discretisation",
+           {{"nodes", plan.segments + 1},
+            {"grading", plan.grading},
+            {"distal_segment_mm", plan.distal * 1e3},
+            {"proximal_segment_mm", plan.proximal * 1e3}}}};
+}
+
+struct Args {
+  std::string dir;
+  std::string name;
+  bool json = false;
+  Discretisation disc;
+  double tip_segment_mm = 1.0;
+};
+
+InstrumentCatalogue load(const Args& a) {
+  return load_catalogue(a.dir.empty() ? default_catalogue_dir() : std::filesystem::path(a.dir));
+}
+
+Discretisation disc_of(const Args& a) {
+  Discretisation d = a.disc;
+  d.tip_segment = a.tip_segment_mm * 1e-3;
+  d.validate("instruments");
+  return d;
+}
+
+void add_common(CLI::App* sub, Args& a) {
+  sub->add_option("--dir", a.dir, "Catalogue folder (default: $VCSIM_INSTRUMENTS_DIR or data/)");
+  sub->add_flag("--json", a.json, "Print JSON instead of Markdown");
+  sub->add_option("--max-nodes", a.disc.max_nodes, "Largest number of rod nodes per instrument");
+  sub->add_option("--tip-segment-mm", a.tip_segment_mm, "Distal segment length (mm)");
+}
+
+void install(CLI::App& app, int& status) {
+  auto a = std::make_shared<Args>();
+  auto* grp = app.add_subcommand("instruments", "The instrument catalogue (data/instruments)");
+  grp->require_subcommand(1);
+
+  auto* list = grp->add_subcommand("list", "List the catalogue's instruments");
+  add_common(list, *a);
+  list->callback([a, &status] {
+    const Discretisation disc = disc_of(*a);
+    const auto cat = load(*a);
+    if (a->json) {
+      nlohmann::json arr = nlohmann::json::array();
+      for (const auto& s : cat.items) arr.push_back(to_json(s, disc));
+      std::cout << arr.dump(2) << "\n";
+    } else {
+      std::cout << "| name | kind | length (mm) | OD (mm) | ID (mm) | E (GPa) | nodes | "
+                   "description |\n|---|---|---|---|---|---|---|---|\n";
+      for (const auto& s : cat.items) {
+        const SegmentPlan p = plan_segments(s.length, disc);
+        std::cout << "| " << s.name << " | " << to_string(s.kind) << " | " << fmt(s.length * 1e3)
+                  << " | " << fmt(s.outer_diameter * 1e3) << " | " << fmt(s.inner_diameter * 1e3)
+                  << " | " << fmt(s.youngs_modulus * 1e-9) << " | " << p.segments + 1 << " | "
+                  << s.description << " |\n";
+      }
+    }
+    status = 0;
+  });
+
+  auto* show = grp->add_subcommand("show", "Show one instrument and its rod discretisation");
+  show->add_option("name", a->name, "Instrument name (see `vcsim instruments list`)")->required();
+  add_common(show, *a);
+  show->callback([a, &status] {
+    const Discretisation disc = disc_of(*a);
+    const auto cat = load(*a);
+    const InstrumentSpec& s = cat.get(a->name);
+    const RodDef def = to_rod_def(s, disc);  // proves the entry builds a valid rod definition
+    const nlohmann::json j = to_json(s, disc);
+    if (a->json) {
+      std::cout << j.dump(2) << "\n";
+    } else {
+      std::cout << "# " << s.name << "\n\n" << s.description << "\n\n";
+      for (const auto& [k, v] : j.items()) {
+        if (k == "name" || k == "description") continue;
+        std::cout << "- " << k << ": " << v.dump() << "\n";
+      }
+      std::cout << "- rod: " << def.segments << " segments, grading " << fmt(def.grading) << "\n";
+    }
+    status = 0;
+  });
+}
+
+const int kRegistered = register_command(30, install);
+
+}  // namespace
+
+}  // namespace vcsim::app

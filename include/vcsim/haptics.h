@@ -1,0 +1,165 @@
+// vcsim haptics: what the trainee does at the groin (per instrument translation and rotation,
+// balloon pressure, syringe flow, buttons) and what the simulator gives back (per instrument
+// axial force and torque at the hub). Two sources: a scripted timeline (deterministic replay)
+// and an OpenIGTLink server for hardware and 3D Slicer. docs/devices.md is the user's guide.
+//
+// Commands use the operator's units (mm, deg, atm, ml/s) as they come off a device; the
+// simulator converts them once when it applies them.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace vcsim {
+
+struct InstrumentCommand {
+  enum class Mode { kPosition, kVelocity };
+  std::string name;  // instrument name, e.g. "guidewire"
+  Mode mode = Mode::kPosition;
+  // Position mode: insertion depth (mm) and angle about the instrument axis (deg), absolute.
+  // Velocity mode: insertion speed (mm/s) and spin (deg/s), held until the next command.
+  double translation_mm = 0.0;
+  double rotation_deg = 0.0;
+};
+const char* to_string(InstrumentCommand::Mode m);
+
+// The commands for one physics step.
+struct DeviceCommands {
+  double time_s = 0.0;                         // simulation time the commands are for
+  std::vector<InstrumentCommand> instruments;  // one per instrument, in a fixed order
+  double balloon_pressure_atm = 0.0;           // inflation device pressure (gauge)
+  double syringe_flow_ml_s = 0.0;              // contrast injection (> 0) or aspiration (< 0)
+  std::uint32_t buttons = 0;                   // bit mask (docs/devices.md)
+
+  const InstrumentCommand* find(std::string_view name) const;
+};
+
+// What the simulator feels at an instrument's hub (sign: positive force pushes the instrument
+// back out of the patient; positive torque opposes positive rotation).
+struct ForceFeedback {
+  std::string name;
+  double axial_force_n = 0.0;
+  double torque_nm = 0.0;
+};
+
+// Plausibility limits: a command beyond them is a malformed message (network) or an input error
+// (timeline file), never a motion.
+struct CommandLimits {
+  double max_translation_mm = 5000.0;  // longer than any instrument
+  double max_rotation_deg = 36000.0;   // a hundred turns
+  double max_speed_mm_s = 1000.0;
+  double max_spin_deg_s = 36000.0;
+  double max_balloon_atm = 30.0;   // above any rated burst pressure (clinical.md: 14-18)
+  double max_syringe_ml_s = 30.0;  // magnitude; hand injection is about 2 ml/s
+
+  // Returns an empty string when the command is within limits, otherwise what is wrong.
+  std::string check(const InstrumentCommand& c) const;
+};
+
+// A source of device commands, polled by the physics thread once per step.
+class InputSource {
+ public:
+  virtual ~InputSource() = default;
+  // Fills `out` with the commands for simulation time `sim_time` (s). Reuses `out`'s storage,
+  // so that a warm poll does not allocate.
+  virtual void poll(double sim_time, DeviceCommands& out) = 0;
+  // Hands the latest hub forces to the device (may be called every step; does not block long).
+  virtual void publish(std::span<const ForceFeedback> feedback) { (void)feedback; }
+};
+
+// A timeline file replayed deterministically: the commands are a pure function of time.
+//
+//   {"keyframes": [
+//     {"t_s": 0, "instruments": {"guidewire": {"translation_mm": 0, "rotation_deg": 0}}},
+//     {"t_s": 2, "instruments": {"guidewire": {"translation_mm": 50, "rotation_deg": 90}},
+//      "balloon_pressure_atm": 0, "syringe_flow_ml_s": 2, "buttons": 1},
+//     {"t_s": 3, "instruments": {"catheter": {"mode": "velocity", "translation_mm": 10,
+//                                             "rotation_deg": 0}}}]}
+//
+// Each instrument follows the keyframes that name it: between two position keyframes it moves
+// linearly; a velocity keyframe holds its speeds until the instrument's next keyframe; before
+// its first keyframe it rests at that keyframe's position (or zero speed). Balloon pressure
+// moves linearly between the keyframes that give it; syringe flow and buttons hold from the
+// keyframe that gives them. All three are 0 before their first keyframe.
+class ScriptedTimeline : public InputSource {
+ public:
+  static ScriptedTimeline parse(std::string_view json_text, const std::string& source,
+                                const CommandLimits& limits = {});
+  static ScriptedTimeline load(const std::filesystem::path& file, const CommandLimits& limits = {});
+
+  void poll(double sim_time, DeviceCommands& out) override;
+  void publish(std::span<const ForceFeedback> feedback) override;
+
+  double duration() const;  // time of the last keyframe (s)
+  const std::vector<std::string>& instrument_names() const { return names_; }  // sorted
+  const std::vector<ForceFeedback>& last_feedback() const { return feedback_; }
+
+ private:
+  struct Key {
+    double t = 0.0;
+    InstrumentCommand::Mode mode = InstrumentCommand::Mode::kPosition;
+    double translation = 0.0, rotation = 0.0;
+  };
+  struct ScalarKey {
+    double t = 0.0, value = 0.0;
+  };
+  std::vector<std::string> names_;
+  std::vector<std::vector<Key>> tracks_;  // (instrument) keyframes naming it, by time
+  std::vector<ScalarKey> balloon_, syringe_, buttons_;
+  double duration_ = 0.0;
+  std::vector<ForceFeedback> feedback_;
+};
+
+struct IgtlServerOptions {
+  std::string address = "127.0.0.1";  // IPv4 address to listen on; loopback by default
+  int port = 18944;                   // the OpenIGTLink default; 0 picks a free port
+  std::vector<std::string> instruments = {"guidewire", "catheter"};  // device names accepted
+  double feedback_rate_hz = 200.0;  // force messages per second while a client is connected
+  CommandLimits limits;
+  // Where log lines go (one line each, no newline); default: stderr with a "vcsim igtl:" prefix.
+  // Called from the server thread.
+  std::function<void(const std::string&)> log;
+};
+
+struct IgtlStats {
+  std::uint64_t connections = 0;        // clients accepted
+  std::uint64_t disconnections = 0;     // clients lost or dropped
+  std::uint64_t messages_accepted = 0;  // messages that changed a command
+  std::uint64_t messages_dropped = 0;   // malformed, out of range, unknown name or type
+  std::uint64_t feedback_sent = 0;      // force messages sent
+  bool connected = false;
+};
+
+// An OpenIGTLink server on a background thread: one client at a time (a new connection replaces
+// the old one, so a device that restarts can reconnect), TRANSFORM and SENSOR messages in, SENSOR
+// "force_<name>" out at feedback_rate_hz. A client that disconnects leaves position commands
+// where they are and stops velocity commands and syringe flow. Bad messages are dropped and
+// logged; a header that cannot be framed drops the connection. Thread-safe: poll() and
+// publish() come from the physics thread.
+class IgtlServer : public InputSource {
+ public:
+  // Listens at once; throws InputError naming the option when the address, port or names are
+  // unusable.
+  explicit IgtlServer(IgtlServerOptions options = {});
+  ~IgtlServer() override;
+  IgtlServer(const IgtlServer&) = delete;
+  IgtlServer& operator=(const IgtlServer&) = delete;
+
+  int port() const;  // the port actually bound (useful with port 0)
+  void poll(double sim_time, DeviceCommands& out) override;
+  void publish(std::span<const ForceFeedback> feedback) override;
+  IgtlStats stats() const;
+  void stop();  // closes the connection and joins the thread; idempotent
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace vcsim

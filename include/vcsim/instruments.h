@@ -1,0 +1,107 @@
+// vcsim instruments: the catalogue of guidewires and catheters (data/instruments/*.json) and the
+// mapping of a catalogue entry to a rod definition with a bounded number of nodes.
+//
+// Files carry units in their key names (length_mm, od_in, youngs_modulus_gpa); specs hold SI
+// (m, Pa, kg/m^3, rad). docs/instruments.md lists every field and the source of every value.
+#pragma once
+
+#include "vcsim/core.h"
+#include "vcsim/rod.h"
+
+#include <filesystem>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace vcsim {
+
+enum class InstrumentKind { kGuidewire, kCatheter };
+const char* to_string(InstrumentKind k);
+
+// Coulomb coefficients (dimensionless).
+struct InstrumentFriction {
+  double vessel_static = 0.1;   // against the vessel wall, sticking
+  double vessel_dynamic = 0.1;  // against the vessel wall, sliding (<= static)
+  double lumen = 0.04;          // inside another instrument's lumen (or around a wire)
+};
+
+// What the fluoroscopy renderer needs to draw the instrument.
+struct InstrumentRadiopacity {
+  std::string material;                 // shaft material name, e.g. "nitinol"
+  double attenuation_60kev = 0.0;       // linear attenuation of the shaft material (1/m)
+  double attenuation_80kev = 0.0;       // (1/m)
+  double coil_length = 0.0;             // radiopaque distal coil (m), 0 for none
+  double coil_attenuation_60kev = 0.0;  // (1/m)
+  double coil_attenuation_80kev = 0.0;  // (1/m)
+  std::vector<double> markers;          // marker band positions, distance from the distal tip (m)
+};
+
+// One catalogue entry, in SI.
+struct InstrumentSpec {
+  std::string name;         // unique, equal to the file stem
+  std::string description;  // one line for humans
+  std::string source;       // file it was read from (for later error messages)
+  InstrumentKind kind = InstrumentKind::kGuidewire;
+  double length = 1.5;               // (m)
+  double outer_diameter = 0.889e-3;  // (m)
+  double inner_diameter = 0.0;       // (m), 0 for a solid wire
+  double youngs_modulus = 1e10;      // whole-section flexural modulus of the shaft (Pa)
+  double tip_length = 0.0;           // soft distal length (m)
+  double tip_modulus_ratio = 1.0;    // E_tip / E_shaft in (0, 1]
+  double poisson = 0.3;
+  double density = 6450.0;            // (kg/m^3)
+  std::vector<TipSection> tip_shape;  // rest shape of the distal end, proximal to distal
+  InstrumentFriction friction;
+  InstrumentRadiopacity radiopacity;
+
+  // Length of the shaped distal part (sum of the tip sections) (m).
+  double shaped_length() const;
+};
+
+// Parses one catalogue file's text. `source` names it in errors ("data/instruments/jl4.json");
+// the entry's "name" must equal `expected_name` unless that is empty. Throws InputError naming
+// the source and the field (e.g. "tip_sections[2].arc.radius_mm").
+InstrumentSpec parse_instrument(std::string_view json_text, const std::string& source,
+                                const std::string& expected_name = "");
+// Reads and parses one file; the entry's name must equal the file stem.
+InstrumentSpec load_instrument(const std::filesystem::path& file);
+
+// Every *.json in a folder, sorted by name.
+struct InstrumentCatalogue {
+  std::vector<InstrumentSpec> items;
+  const InstrumentSpec* find(std::string_view name) const;
+  // Throws InputError("instrument", name, "expected one of ...") when absent.
+  const InstrumentSpec& get(std::string_view name) const;
+};
+InstrumentCatalogue load_catalogue(const std::filesystem::path& dir);
+// $VCSIM_INSTRUMENTS_DIR if set, else the source tree's data/instruments.
+std::filesystem::path default_catalogue_dir();
+
+// How a clinical length maps to rod segments: a geometric grading (RodDef::grading) that keeps
+// the distal segments near `tip_segment` and the node count at most `max_nodes`. The shaft away
+// from the tip gets coarser, where bending is gentle and the catheter or vessel guides it.
+struct Discretisation {
+  int max_nodes = 512;
+  double tip_segment = 1.0e-3;  // target length of the most distal segment (m)
+  int min_segments = 8;
+
+  void validate(const std::string& source = "discretisation") const;
+};
+
+struct SegmentPlan {
+  int segments = 0;       // edges (nodes = segments + 1)
+  double grading = 1.0;   // distal / proximal segment length, as in RodDef
+  double distal = 0.0;    // most distal segment length (m)
+  double proximal = 0.0;  // most proximal segment length (m)
+};
+
+// Segments and grading for a rod of `length` (m). Uniform when length / tip_segment segments
+// fit in max_nodes; otherwise max_nodes - 1 segments graded geometrically so that the distal
+// one is tip_segment long.
+SegmentPlan plan_segments(double length, const Discretisation& disc);
+
+// The rod definition of a catalogue entry: geometry, materials, soft tip and tip shape, with
+// segments from plan_segments. Pose and boundaries keep RodDef's defaults (clamped base).
+RodDef to_rod_def(const InstrumentSpec& spec, const Discretisation& disc = {});
+
+}  // namespace vcsim

@@ -1,0 +1,218 @@
+// Command types shared by every input source, and the scripted timeline.
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <sstream>
+
+#include "json_fields.h"
+#include "vcsim/haptics.h"
+
+namespace vcsim {
+
+using internal::cat;
+using internal::Json;
+using internal::JsonFields;
+
+const char* to_string(InstrumentCommand::Mode m) {
+  return m == InstrumentCommand::Mode::kPosition ? "position" : "velocity";
+}
+
+const InstrumentCommand* DeviceCommands::find(std::string_view name) const {
+  for (const auto& c : instruments) {
+    if (c.name == name) return &c;
+  }
+  return nullptr;
+}
+
+namespace {
+std::string num(double v) {
+  std::ostringstream os;
+  os << v;
+  return os.str();
+}
+}  // namespace
+
+std::string CommandLimits::check(const InstrumentCommand& c) const {
+  if (!std::isfinite(c.translation_mm) || !std::isfinite(c.rotation_deg)) {
+    return "expected finite numbers";
+  }
+  const bool pos = c.mode == InstrumentCommand::Mode::kPosition;
+  const double lt = pos ? max_translation_mm : max_speed_mm_s;
+  const double lr = pos ? max_rotation_deg : max_spin_deg_s;
+  if (std::abs(c.translation_mm) > lt) {
+    return cat(pos ? "expected a translation within +-" : "expected a speed within +-", num(lt),
+               pos ? " mm, got " : " mm/s, got ", num(c.translation_mm));
+  }
+  if (std::abs(c.rotation_deg) > lr) {
+    return cat(pos ? "expected a rotation within +-" : "expected a spin within +-", num(lr),
+               pos ? " deg, got " : " deg/s, got ", num(c.rotation_deg));
+  }
+  return {};
+}
+
+// ---- scripted timeline ----
+
+ScriptedTimeline ScriptedTimeline::parse(std::string_view json_text, const std::string& source,
+                                         const CommandLimits& limits) {
+  const Json doc = internal::parse_json_text(json_text, source);
+  JsonFields root(doc, source, "");
+  root.get("comment");
+  const Json& frames = root.array("keyframes");
+  root.finish();
+  if (frames.empty()) root.fail("keyframes", "expected at least one keyframe");
+
+  std::map<std::string, std::vector<Key>> tracks;  // sorted by name: a fixed output order
+  ScriptedTimeline tl;
+  double prev_t = -1.0;
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    JsonFields k(frames[i], source, internal::index_path("keyframes", i));
+    const double t = k.nonnegative("t_s");
+    if (t <= prev_t)
+      k.fail("t_s", cat("expected a time after the previous keyframe's ", num(prev_t)));
+    prev_t = t;
+    if (const Json* inst = k.get("instruments")) {
+      const std::string ipath = k.field("instruments");
+      JsonFields all(*inst, source, ipath);
+      for (auto it = inst->begin(); it != inst->end(); ++it) {
+        const std::string& name = it.key();
+        JsonFields c(all.require(name.c_str()), source, internal::join_path(ipath, name));
+        if (name.empty() || name.size() > 14) {
+          throw InputError(source, c.path(), "expected an instrument name of 1-14 characters");
+        }
+        Key key;
+        key.t = t;
+        const std::string mode = c.string_or("mode", "position");
+        if (mode == "velocity") {
+          key.mode = InstrumentCommand::Mode::kVelocity;
+        } else if (mode != "position") {
+          c.fail("mode", cat("expected \"position\" or \"velocity\", got \"", mode, "\""));
+        }
+        key.translation = c.number("translation_mm");
+        key.rotation = c.number("rotation_deg");
+        c.finish();
+        const std::string why = limits.check({name, key.mode, key.translation, key.rotation});
+        if (!why.empty()) {
+          const bool tr = why.find("translation") != std::string::npos ||
+                          why.find("speed") != std::string::npos;
+          c.fail(tr ? "translation_mm" : "rotation_deg", why);
+        }
+        tracks[name].push_back(key);
+      }
+      all.finish();
+    }
+    if (k.has("balloon_pressure_atm")) {
+      const double p = k.number("balloon_pressure_atm");
+      if (p < 0 || p > limits.max_balloon_atm) {
+        k.fail("balloon_pressure_atm", cat("expected a pressure in [0, ",
+                                           num(limits.max_balloon_atm), "] atm, got ", num(p)));
+      }
+      tl.balloon_.push_back({t, p});
+    }
+    if (k.has("syringe_flow_ml_s")) {
+      const double q = k.number("syringe_flow_ml_s");
+      if (std::abs(q) > limits.max_syringe_ml_s) {
+        k.fail("syringe_flow_ml_s", cat("expected a flow within +-", num(limits.max_syringe_ml_s),
+                                        " ml/s, got ", num(q)));
+      }
+      tl.syringe_.push_back({t, q});
+    }
+    if (k.has("buttons")) {
+      const double b = k.number("buttons");
+      if (b < 0 || b > 4294967295.0 || b != std::floor(b)) {
+        k.fail("buttons", cat("expected an integer bit mask in [0, 2^32 - 1], got ", num(b)));
+      }
+      tl.buttons_.push_back({t, b});
+    }
+    k.finish();
+  }
+  for (auto& [name, keys] : tracks) {
+    tl.names_.push_back(name);
+    tl.tracks_.push_back(std::move(keys));
+  }
+  tl.duration_ = prev_t;
+  return tl;
+}
+
+ScriptedTimeline ScriptedTimeline::load(const std::filesystem::path& file,
+                                        const CommandLimits& limits) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) throw InputError(file.string(), "file", "expected a readable file");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return parse(ss.str(), file.string(), limits);
+}
+
+double ScriptedTimeline::duration() const {
+  return duration_;
+}
+
+namespace {
+
+// Index of the last key with time <= t, or -1.
+template <typename K>
+std::ptrdiff_t last_at(const std::vector<K>& keys, double t) {
+  auto it =
+      std::upper_bound(keys.begin(), keys.end(), t, [](double v, const K& k) { return v < k.t; });
+  return (it - keys.begin()) - 1;
+}
+
+double lerp(double a, double b, double u) {
+  return a + (b - a) * u;
+}
+
+}  // namespace
+
+void ScriptedTimeline::poll(double sim_time, DeviceCommands& out) {
+  using Mode = InstrumentCommand::Mode;
+  out.time_s = sim_time;
+  out.instruments.resize(names_.size());
+  for (std::size_t i = 0; i < names_.size(); ++i) {
+    const auto& keys = tracks_[i];
+    InstrumentCommand& c = out.instruments[i];
+    c.name = names_[i];  // same length each step: no allocation once warm
+    const std::ptrdiff_t k = last_at(keys, sim_time);
+    if (k < 0) {
+      // Before the first keyframe: at rest where the script starts.
+      const Key& first = keys.front();
+      c.mode = first.mode;
+      c.translation_mm = first.mode == Mode::kPosition ? first.translation : 0.0;
+      c.rotation_deg = first.mode == Mode::kPosition ? first.rotation : 0.0;
+      continue;
+    }
+    const Key& a = keys[static_cast<std::size_t>(k)];
+    c.mode = a.mode;
+    c.translation_mm = a.translation;
+    c.rotation_deg = a.rotation;
+    const std::size_t next = static_cast<std::size_t>(k) + 1;
+    if (a.mode == Mode::kPosition && next < keys.size() && keys[next].mode == Mode::kPosition) {
+      const Key& b = keys[next];
+      const double u = (sim_time - a.t) / (b.t - a.t);
+      c.translation_mm = lerp(a.translation, b.translation, u);
+      c.rotation_deg = lerp(a.rotation, b.rotation, u);
+    }
+  }
+  const std::ptrdiff_t kb = last_at(balloon_, sim_time);
+  if (kb < 0) {
+    out.balloon_pressure_atm = 0.0;
+  } else if (static_cast<std::size_t>(kb) + 1 < balloon_.size()) {
+    const auto& a = balloon_[static_cast<std::size_t>(kb)];
+    const auto& b = balloon_[static_cast<std::size_t>(kb) + 1];
+    out.balloon_pressure_atm = lerp(a.value, b.value, (sim_time - a.t) / (b.t - a.t));
+  } else {
+    out.balloon_pressure_atm = balloon_.back().value;
+  }
+  const std::ptrdiff_t ks = last_at(syringe_, sim_time);
+  out.syringe_flow_ml_s = ks < 0 ? 0.0 : syringe_[static_cast<std::size_t>(ks)].value;
+  const std::ptrdiff_t kn = last_at(buttons_, sim_time);
+  out.buttons =
+      kn < 0 ? 0u : static_cast<std::uint32_t>(buttons_[static_cast<std::size_t>(kn)].value);
+}
+
+void ScriptedTimeline::publish(std::span<const ForceFeedback> feedback) {
+  // Kept for inspection (tests, reports); a script has no device to push back.
+  feedback_.resize(feedback.size());
+  std::copy(feedback.begin(), feedback.end(), feedback_.begin());
+}
+
+}  // namespace vcsim

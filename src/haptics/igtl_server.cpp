@@ -1,0 +1,580 @@
+// OpenIGTLink server for device input and force feedback.
+//
+// Sockets are plain POSIX here rather than igtl::ServerSocket, for three reasons: the library
+// binds to every interface (we listen on loopback by default), it cannot bind port 0 (tests need
+// a free port), and its blocking calls cannot be woken for a clean shutdown. Framing is checked
+// by hand so that a hostile header (a body size of 2^63, a truncated field) cannot reach the
+// library; byte order, CRC-64 and outgoing messages use libopenigtlink.
+#include <arpa/inet.h>
+#include <fcntl.h>
+#include <igtlSensorMessage.h>
+#include <igtlTimeStamp.h>
+#include <igtl_header.h>
+#include <igtl_sensor.h>
+#include <igtl_util.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <iostream>
+#include <mutex>
+#include <sstream>
+#include <thread>
+
+#include "json_fields.h"
+#include "vcsim/core.h"
+#include "vcsim/haptics.h"
+
+namespace vcsim {
+
+using internal::cat;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+constexpr std::size_t kHeaderSize = IGTL_HEADER_SIZE;  // 58 bytes
+// Larger than any message we accept (a SENSOR of 255 values is 2 kB); anything bigger is either
+// an image we do not want or garbage, and reading it would stall the connection.
+constexpr std::uint64_t kMaxBody = 64 * 1024;
+constexpr int kMaxLogLinesPerSecond = 20;
+
+std::string num(double v) {
+  std::ostringstream os;
+  os << v;
+  return os.str();
+}
+
+// Big-endian reads (the protocol's byte order) for the version 2 extended header.
+std::uint16_t be16(const unsigned char* p) {
+  return static_cast<std::uint16_t>((p[0] << 8) | p[1]);
+}
+std::uint32_t be32(const unsigned char* p) {
+  return (std::uint32_t{p[0]} << 24) | (std::uint32_t{p[1]} << 16) | (std::uint32_t{p[2]} << 8) |
+         std::uint32_t{p[3]};
+}
+float be_float(const unsigned char* p) {
+  const std::uint32_t u = be32(p);
+  float f;
+  std::memcpy(&f, &u, sizeof f);
+  return f;
+}
+
+// A fixed-size name field: printable ASCII, then NUL padding only.
+bool clean_name(const char* field, std::size_t n, std::string& out) {
+  std::size_t len = 0;
+  while (len < n && field[len] != '\0') {
+    const auto c = static_cast<unsigned char>(field[len]);
+    if (c < 0x20 || c > 0x7e) return false;
+    ++len;
+  }
+  for (std::size_t i = len; i < n; ++i) {
+    if (field[i] != '\0') return false;
+  }
+  out.assign(field, len);
+  return true;
+}
+
+bool valid_instrument_name(const std::string& s) {
+  if (s.empty() || s.size() > 14) return false;  // "force_" + name fits the 20-byte field
+  for (char c : s) {
+    if (!((c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '_' ||
+          c == '-'))
+      return false;
+  }
+  return s != "balloon" && s != "syringe" && s != "buttons" && s.rfind("vel_", 0) != 0 &&
+         s.rfind("force_", 0) != 0;
+}
+
+}  // namespace
+
+struct IgtlServer::Impl {
+  IgtlServerOptions opt;
+  int listen_fd = -1;
+  int client_fd = -1;
+  int bound_port = 0;
+  std::thread thread;
+  std::atomic<bool> stopping{false};
+
+  // Hand-over to the physics thread: the latest accepted commands.
+  mutable std::mutex cmd_mu;
+  DeviceCommands latest;
+
+  // Hand-over from the physics thread: the latest hub forces, one per instrument.
+  std::mutex fb_mu;
+  std::vector<ForceFeedback> feedback;
+
+  std::atomic<std::uint64_t> n_connections{0}, n_disconnections{0}, n_accepted{0}, n_dropped{0},
+      n_feedback{0};
+  std::atomic<bool> connected{false};
+
+  // Server thread only.
+  std::vector<unsigned char> rx;  // bytes received, not yet framed
+  std::vector<unsigned char> tx;  // bytes to send (whole messages)
+  std::size_t tx_sent = 0;
+  std::vector<igtl::SensorMessage::Pointer> out_msgs;  // one per instrument, reused
+  std::vector<ForceFeedback> fb_copy;
+  Clock::time_point log_window;
+  int log_lines = 0;
+  int log_suppressed = 0;
+
+  void log(const std::string& line) {
+    const auto now = Clock::now();
+    if (now - log_window > std::chrono::seconds(1)) {
+      if (log_suppressed > 0) {
+        emit(cat(std::to_string(log_suppressed), " similar lines suppressed"));
+      }
+      log_window = now;
+      log_lines = 0;
+      log_suppressed = 0;
+    }
+    // A flood of bad messages must not flood the terminal.
+    if (++log_lines > kMaxLogLinesPerSecond) {
+      ++log_suppressed;
+      return;
+    }
+    emit(line);
+  }
+  void emit(const std::string& line) {
+    if (opt.log) {
+      opt.log(line);
+    } else {
+      std::cerr << "vcsim igtl: " << line << "\n";
+    }
+  }
+
+  void drop(const std::string& device, const std::string& why) {
+    n_dropped.fetch_add(1);
+    log(cat("dropped message '", device, "': ", why));
+  }
+
+  int index_of(std::string_view name) const {
+    for (std::size_t i = 0; i < opt.instruments.size(); ++i) {
+      if (opt.instruments[i] == name) return static_cast<int>(i);
+    }
+    return -1;
+  }
+
+  // ---- connection ----
+
+  void adopt(int fd) {
+    if (client_fd >= 0) {
+      log("a new client replaces the connected one");
+      disconnect("replaced");
+    }
+    const int flags = fcntl(fd, F_GETFL, 0);
+    fcntl(fd, F_SETFL, flags | O_NONBLOCK);
+    int one = 1;
+    setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);  // small messages, low latency
+    client_fd = fd;
+    rx.clear();
+    tx.clear();
+    tx_sent = 0;
+    n_connections.fetch_add(1);
+    connected = true;
+    log("client connected");
+  }
+
+  void disconnect(const std::string& why) {
+    if (client_fd < 0) return;
+    ::close(client_fd);
+    client_fd = -1;
+    rx.clear();
+    tx.clear();
+    tx_sent = 0;
+    n_disconnections.fetch_add(1);
+    connected = false;
+    log(cat("client disconnected (", why, ")"));
+    // Positions stay where the client left them; nothing keeps moving without a hand on it.
+    std::lock_guard lock(cmd_mu);
+    for (auto& c : latest.instruments) {
+      if (c.mode == InstrumentCommand::Mode::kVelocity) {
+        c.translation_mm = 0.0;
+        c.rotation_deg = 0.0;
+      }
+    }
+    latest.syringe_flow_ml_s = 0.0;
+  }
+
+  void accept_pending() {
+    const int fd = ::accept(listen_fd, nullptr, nullptr);
+    if (fd >= 0) adopt(fd);
+  }
+
+  // ---- receiving ----
+
+  void read_client() {
+    unsigned char buf[16384];
+    for (int rounds = 0; rounds < 64; ++rounds) {  // bounded: keep feedback on time
+      const ssize_t n = ::recv(client_fd, buf, sizeof buf, 0);
+      if (n > 0) {
+        rx.insert(rx.end(), buf, buf + n);
+        if (!frame_messages()) return;
+        continue;
+      }
+      if (n == 0) {
+        disconnect("closed by the client");
+      } else if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+        disconnect(cat("receive failed: ", std::strerror(errno)));
+      }
+      return;
+    }
+  }
+
+  // Splits rx into messages. Returns false when the stream could not be framed (connection
+  // dropped: after a bad header there is no way to find the next message boundary).
+  bool frame_messages() {
+    std::size_t off = 0;
+    while (rx.size() - off >= kHeaderSize) {
+      igtl_header h;
+      std::memcpy(&h, rx.data() + off, kHeaderSize);
+      igtl_header_convert_byte_order(&h);
+      std::string type, device;
+      const bool names_ok = clean_name(h.name, IGTL_HEADER_TYPE_SIZE, type) &&
+                            clean_name(h.device_name, IGTL_HEADER_NAME_SIZE, device);
+      if ((h.version != 1 && h.version != 2) || !names_ok || type.empty() ||
+          h.body_size > kMaxBody) {
+        n_dropped.fetch_add(1);
+        log(cat("unreadable header (version ", std::to_string(h.version), ", body ",
+                std::to_string(h.body_size), " bytes): dropping the connection"));
+        disconnect("garbage on the stream");
+        return false;
+      }
+      const std::size_t body = static_cast<std::size_t>(h.body_size);
+      if (rx.size() - off < kHeaderSize + body) break;  // wait for the rest
+      handle(h, type, device, rx.data() + off + kHeaderSize, body);
+      off += kHeaderSize + body;
+    }
+    rx.erase(rx.begin(), rx.begin() + static_cast<std::ptrdiff_t>(off));
+    return true;
+  }
+
+  void handle(const igtl_header& h, const std::string& type, const std::string& device,
+              const unsigned char* body, std::size_t size) {
+    // The CRC covers the whole body (extended header and metadata included).
+    if (crc64(const_cast<unsigned char*>(body), size, 0) != h.crc) {
+      return drop(device, "CRC mismatch");
+    }
+    // Header version 2 (OpenIGTLink 3): extended header, content, metadata header, metadata.
+    const unsigned char* content = body;
+    std::size_t csize = size;
+    if (h.version == 2) {
+      if (size < 12) return drop(device, "version 2 body shorter than its extended header");
+      const std::size_t ext = be16(body), meta_head = be16(body + 2), meta = be32(body + 4);
+      if (ext < 12 || ext + meta_head + meta > size) {
+        return drop(device, "inconsistent version 2 extended header");
+      }
+      content = body + ext;
+      csize = size - ext - meta_head - meta;
+    }
+    if (type == "SENSOR") return handle_sensor(device, content, csize);
+    if (type == "TRANSFORM") return handle_transform(device, content, csize);
+    drop(device, cat("unsupported message type ", type, " (expected SENSOR or TRANSFORM)"));
+  }
+
+  void handle_sensor(const std::string& device, const unsigned char* content, std::size_t size) {
+    if (size < IGTL_SENSOR_HEADER_SIZE) return drop(device, "SENSOR body too short");
+    igtl_sensor_header sh;
+    std::memcpy(&sh, content, IGTL_SENSOR_HEADER_SIZE);
+    const std::size_t n = sh.larray;
+    if (size != IGTL_SENSOR_HEADER_SIZE + 8 * n) {
+      return drop(device, "SENSOR body size does not match its array length");
+    }
+    double v[255];
+    std::memcpy(v, content + IGTL_SENSOR_HEADER_SIZE, 8 * n);
+    igtl_sensor_convert_byte_order(&sh, v);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!std::isfinite(v[i])) return drop(device, "non-finite value");
+    }
+    const CommandLimits& lim = opt.limits;
+    auto want = [&](std::size_t k) {
+      if (n == k) return true;
+      drop(device, cat("expected ", std::to_string(k), " values, got ", std::to_string(n)));
+      return false;
+    };
+
+    if (device == "balloon") {
+      if (!want(1)) return;
+      if (v[0] < 0 || v[0] > lim.max_balloon_atm) {
+        return drop(device, cat("pressure ", num(v[0]), " atm outside [0, ",
+                                num(lim.max_balloon_atm), "]"));
+      }
+      std::lock_guard lock(cmd_mu);
+      latest.balloon_pressure_atm = v[0];
+    } else if (device == "syringe") {
+      if (!want(1)) return;
+      if (std::abs(v[0]) > lim.max_syringe_ml_s) {
+        return drop(device, cat("flow ", num(v[0]), " ml/s beyond +-", num(lim.max_syringe_ml_s)));
+      }
+      std::lock_guard lock(cmd_mu);
+      latest.syringe_flow_ml_s = v[0];
+    } else if (device == "buttons") {
+      if (!want(1)) return;
+      if (v[0] < 0 || v[0] > 4294967295.0 || v[0] != std::floor(v[0])) {
+        return drop(device, "expected an integer bit mask in [0, 2^32 - 1]");
+      }
+      std::lock_guard lock(cmd_mu);
+      latest.buttons = static_cast<std::uint32_t>(v[0]);
+    } else {
+      const bool vel = device.rfind("vel_", 0) == 0;
+      const std::string_view name = vel ? std::string_view(device).substr(4) : device;
+      const int idx = index_of(name);
+      if (idx < 0) return drop(device, "unknown device name (see docs/devices.md)");
+      if (!want(2)) return;
+      set_instrument(idx, device,
+                     vel ? InstrumentCommand::Mode::kVelocity : InstrumentCommand::Mode::kPosition,
+                     v[0], v[1], false);
+      return;
+    }
+    n_accepted.fetch_add(1);
+  }
+
+  // TRANSFORM: the pose of the instrument's hub in the device frame, whose z axis is the
+  // insertion axis. Depth = the translation's z component; angle = rotation about z.
+  void handle_transform(const std::string& device, const unsigned char* content, std::size_t size) {
+    const int idx = index_of(device);
+    if (idx < 0) return drop(device, "unknown device name (see docs/devices.md)");
+    if (size != 48) return drop(device, "TRANSFORM body is not 12 floats");
+    // Columns of the upper 3x4 matrix: R(:,0), R(:,1), R(:,2), t (big-endian float32).
+    double m[12];
+    for (int i = 0; i < 12; ++i) {
+      m[i] = static_cast<double>(be_float(content + 4 * i));
+      if (!std::isfinite(m[i])) return drop(device, "non-finite value");
+    }
+    for (int c = 0; c < 3; ++c) {
+      const double len = std::sqrt(m[3 * c] * m[3 * c] + m[3 * c + 1] * m[3 * c + 1] +
+                                   m[3 * c + 2] * m[3 * c + 2]);
+      if (std::abs(len - 1.0) > 0.05) return drop(device, "rotation part is not a rotation");
+    }
+    const double depth_mm = m[11];
+    const double angle_deg = std::atan2(m[1], m[0]) * 180.0 / 3.14159265358979323846;
+    set_instrument(idx, device, InstrumentCommand::Mode::kPosition, depth_mm, angle_deg, true);
+  }
+
+  void set_instrument(int idx, const std::string& device, InstrumentCommand::Mode mode,
+                      double translation, double rotation, bool unwrap) {
+    std::lock_guard lock(cmd_mu);
+    InstrumentCommand& c = latest.instruments[static_cast<std::size_t>(idx)];
+    if (unwrap && c.mode == InstrumentCommand::Mode::kPosition) {
+      // A matrix knows the angle only modulo a turn; take the turn nearest the last command so
+      // that several turns of a wire add up.
+      rotation += 360.0 * std::round((c.rotation_deg - rotation) / 360.0);
+    }
+    const InstrumentCommand next{c.name, mode, translation, rotation};
+    const std::string why = opt.limits.check(next);
+    if (!why.empty()) {
+      n_dropped.fetch_add(1);
+      log(cat("dropped message '", device, "': ", why));
+      return;
+    }
+    c.mode = mode;
+    c.translation_mm = translation;
+    c.rotation_deg = rotation;
+    n_accepted.fetch_add(1);
+  }
+
+  // ---- sending ----
+
+  void flush() {
+    while (client_fd >= 0 && tx_sent < tx.size()) {
+      const ssize_t n = ::send(client_fd, tx.data() + tx_sent, tx.size() - tx_sent, MSG_NOSIGNAL);
+      if (n > 0) {
+        tx_sent += static_cast<std::size_t>(n);
+      } else if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR)) {
+        return;  // the client is slow; try again next round
+      } else {
+        disconnect(cat("send failed: ", std::strerror(errno)));
+        return;
+      }
+    }
+    tx.clear();
+    tx_sent = 0;
+  }
+
+  void send_feedback() {
+    if (client_fd < 0) return;
+    if (!tx.empty()) return flush();  // still sending the last batch: forces are latest-value
+    {
+      std::lock_guard lock(fb_mu);
+      fb_copy = feedback;
+    }
+    igtl::TimeStamp::Pointer ts = igtl::TimeStamp::New();
+    ts->GetTime();
+    for (std::size_t i = 0; i < out_msgs.size(); ++i) {
+      auto& msg = out_msgs[i];
+      msg->SetValue(0, fb_copy[i].axial_force_n);
+      msg->SetValue(1, fb_copy[i].torque_nm);
+      msg->SetTimeStamp(ts);
+      msg->Pack();
+      const auto* p = static_cast<const unsigned char*>(msg->GetPackPointer());
+      tx.insert(tx.end(), p, p + msg->GetPackSize());
+    }
+    n_feedback.fetch_add(out_msgs.size());
+    flush();
+  }
+
+  // ---- thread ----
+
+  void run() {
+    const auto period = std::chrono::duration_cast<Clock::duration>(
+        std::chrono::duration<double>(1.0 / opt.feedback_rate_hz));
+    auto next_send = Clock::now() + period;
+    while (!stopping.load()) {
+      // Wake for the next feedback message, and at least every 10 ms to notice stop().
+      const auto now = Clock::now();
+      auto wait = std::chrono::duration_cast<std::chrono::milliseconds>(next_send - now);
+      int timeout = static_cast<int>(std::clamp<long long>(wait.count(), 0, 10));
+      pollfd fds[2] = {{listen_fd, POLLIN, 0}, {client_fd, POLLIN, 0}};
+      const nfds_t nfds = client_fd >= 0 ? 2 : 1;
+      const int r = ::poll(fds, nfds, timeout);
+      if (r < 0 && errno != EINTR) {
+        log(cat("poll failed: ", std::strerror(errno)));
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      }
+      if (r > 0) {
+        if (nfds == 2 && (fds[1].revents & (POLLIN | POLLHUP | POLLERR))) read_client();
+        if (fds[0].revents & POLLIN) accept_pending();
+      }
+      if (client_fd >= 0 && !tx.empty()) flush();
+      if (Clock::now() >= next_send) {
+        send_feedback();
+        next_send += period;
+        // After a stall, resume the rate instead of sending a burst to catch up.
+        if (next_send < Clock::now()) next_send = Clock::now() + period;
+      }
+    }
+    disconnect("server stopping");
+  }
+};
+
+IgtlServer::IgtlServer(IgtlServerOptions options) : impl_(std::make_unique<Impl>()) {
+  Impl& s = *impl_;
+  s.opt = std::move(options);
+  const std::string src = "igtl";
+  if (s.opt.port < 0 || s.opt.port > 65535) {
+    throw InputError(src, "port", cat("expected 0-65535, got ", std::to_string(s.opt.port)));
+  }
+  require_positive(s.opt.feedback_rate_hz, src, "feedback_rate_hz");
+  if (s.opt.feedback_rate_hz > 10000) {
+    throw InputError(src, "feedback_rate_hz", "expected at most 10000 messages per second");
+  }
+  if (s.opt.instruments.empty()) throw InputError(src, "instruments", "expected at least one");
+  for (std::size_t i = 0; i < s.opt.instruments.size(); ++i) {
+    const std::string& n = s.opt.instruments[i];
+    const std::string field = internal::index_path("instruments", i);
+    if (!valid_instrument_name(n)) {
+      throw InputError(src, field,
+                       cat("expected 1-14 characters from A-Z a-z 0-9 _ -, not balloon, syringe, "
+                           "buttons or a vel_/force_ prefix; got \"",
+                           n, "\""));
+    }
+    for (std::size_t j = 0; j < i; ++j) {
+      if (s.opt.instruments[j] == n) throw InputError(src, field, cat("duplicate name ", n));
+    }
+  }
+
+  // Listening socket.
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(static_cast<std::uint16_t>(s.opt.port));
+  if (inet_pton(AF_INET, s.opt.address.c_str(), &addr.sin_addr) != 1) {
+    throw InputError(
+        src, "address",
+        cat("expected an IPv4 address such as 127.0.0.1, got \"", s.opt.address, "\""));
+  }
+  s.listen_fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (s.listen_fd < 0) throw std::runtime_error(cat("igtl: socket: ", std::strerror(errno)));
+  int one = 1;
+  setsockopt(s.listen_fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+  if (::bind(s.listen_fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0 ||
+      ::listen(s.listen_fd, 4) != 0) {
+    const std::string err = std::strerror(errno);
+    ::close(s.listen_fd);
+    throw InputError(src, "port",
+                     cat("expected a free port on ", s.opt.address, ", got ",
+                         std::to_string(s.opt.port), " (", err, ")"));
+  }
+  socklen_t len = sizeof addr;
+  getsockname(s.listen_fd, reinterpret_cast<sockaddr*>(&addr), &len);
+  s.bound_port = ntohs(addr.sin_port);
+  fcntl(s.listen_fd, F_SETFL, fcntl(s.listen_fd, F_GETFL, 0) | O_NONBLOCK);
+
+  // Commands start at rest: depth 0, angle 0, no pressure, no flow.
+  for (const auto& n : s.opt.instruments) {
+    s.latest.instruments.push_back({n, InstrumentCommand::Mode::kPosition, 0.0, 0.0});
+    s.feedback.push_back({n, 0.0, 0.0});
+    auto msg = igtl::SensorMessage::New();
+    msg->SetDeviceName(cat("force_", n).c_str());
+    msg->SetLength(2);
+    s.out_msgs.push_back(msg);
+  }
+  s.fb_copy = s.feedback;
+  s.log_window = Clock::now();
+  s.thread = std::thread([&s] { s.run(); });
+}
+
+IgtlServer::~IgtlServer() {
+  stop();
+}
+
+void IgtlServer::stop() {
+  if (!impl_) return;
+  impl_->stopping = true;
+  if (impl_->thread.joinable()) impl_->thread.join();
+  if (impl_->listen_fd >= 0) {
+    ::close(impl_->listen_fd);
+    impl_->listen_fd = -1;
+  }
+}
+
+int IgtlServer::port() const {
+  return impl_->bound_port;
+}
+
+void IgtlServer::poll(double sim_time, DeviceCommands& out) {
+  const Impl& s = *impl_;
+  std::lock_guard lock(s.cmd_mu);
+  out.time_s = sim_time;
+  out.instruments.resize(s.latest.instruments.size());
+  for (std::size_t i = 0; i < out.instruments.size(); ++i) {
+    out.instruments[i] = s.latest.instruments[i];  // same names each step: no allocation
+  }
+  out.balloon_pressure_atm = s.latest.balloon_pressure_atm;
+  out.syringe_flow_ml_s = s.latest.syringe_flow_ml_s;
+  out.buttons = s.latest.buttons;
+}
+
+void IgtlServer::publish(std::span<const ForceFeedback> feedback) {
+  Impl& s = *impl_;
+  std::lock_guard lock(s.fb_mu);
+  for (const auto& f : feedback) {
+    const int i = s.index_of(f.name);
+    if (i < 0) continue;  // an instrument the device does not track
+    auto& dst = s.feedback[static_cast<std::size_t>(i)];
+    // A non-finite force must not reach a motor.
+    dst.axial_force_n = std::isfinite(f.axial_force_n) ? f.axial_force_n : 0.0;
+    dst.torque_nm = std::isfinite(f.torque_nm) ? f.torque_nm : 0.0;
+  }
+}
+
+IgtlStats IgtlServer::stats() const {
+  const Impl& s = *impl_;
+  IgtlStats st;
+  st.connections = s.n_connections.load();
+  st.disconnections = s.n_disconnections.load();
+  st.messages_accepted = s.n_accepted.load();
+  st.messages_dropped = s.n_dropped.load();
+  st.feedback_sent = s.n_feedback.load();
+  st.connected = s.connected.load();
+  return st;
+}
+
+}  // namespace vcsim

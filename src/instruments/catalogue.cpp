@@ -1,0 +1,263 @@
+// Catalogue files -> InstrumentSpec (SI). Every field is checked here, once, with the file and
+// the field path in the message; the rest of the engine trusts the spec.
+#include <algorithm>
+#include <cstdlib>
+#include <fstream>
+#include <numbers>
+#include <sstream>
+
+#include "json_fields.h"
+#include "vcsim/instruments.h"
+
+namespace vcsim {
+
+using internal::Json;
+using internal::JsonFields;
+
+namespace {
+
+constexpr double kMm = 1e-3;
+constexpr double kInch = 25.4e-3;
+constexpr double kFrench = 1e-3 / 3.0;  // 1 Fr = 1/3 mm outer diameter
+constexpr double kDeg = std::numbers::pi / 180.0;
+constexpr double kPerCm = 100.0;  // 1/cm -> 1/m
+
+bool valid_name(const std::string& s) {
+  if (s.empty() || s.size() > 64) return false;
+  return std::all_of(s.begin(), s.end(), [](char c) {
+    return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '-' || c == '_' || c == '.';
+  });
+}
+
+// Exactly one of the keys, converted by its factor; names both keys in the error.
+double one_of(JsonFields& f, std::initializer_list<std::pair<const char*, double>> keys,
+              bool required, double lo, double hi) {
+  const char* found = nullptr;
+  double value = 0.0;
+  std::string names;
+  for (auto [key, factor] : keys) {
+    if (!names.empty()) names += ", ";
+    names += key;
+    if (!f.has(key)) continue;
+    if (found) {
+      std::string what = "expected only one of ";
+      what += found;
+      what += " and ";
+      what += key;
+      f.fail(key, what);
+    }
+    found = key;
+    value = require_in_range(f.number(key), lo / factor, hi / factor, f.source(), f.field(key)) *
+            factor;
+  }
+  if (!found && required) {
+    throw InputError(f.source(), f.path().empty() ? names : f.field(names),
+                     "expected one of these keys");
+  }
+  return value;
+}
+
+TipSection parse_section(const Json& j, const std::string& source, const std::string& path) {
+  JsonFields s(j, source, path);
+  const bool straight = s.has("straight_mm"), arc = s.has("arc");
+  if (straight == arc) {
+    throw InputError(source, path, "expected exactly one of straight_mm or arc");
+  }
+  TipSection out;
+  if (straight) {
+    out = TipSection::straight(s.positive("straight_mm") * kMm);
+  } else {
+    JsonFields a = s.object("arc");
+    const double radius = a.positive("radius_mm") * kMm;
+    const double angle = a.number("angle_deg");
+    if (angle == 0.0 || std::abs(angle) > 720.0) {
+      std::string what = "expected a nonzero angle within [-720, 720] degrees, got ";
+      what += internal::describe_json(a.require("angle_deg"));
+      a.fail("angle_deg", what);
+    }
+    const double plane = a.number_or("plane_deg", 0.0);
+    if (std::abs(plane) > 360.0) a.fail("plane_deg", "expected a plane angle within [-360, 360]");
+    a.finish();
+    out = TipSection::arc(radius, angle * kDeg, plane * kDeg);
+  }
+  s.finish();
+  return out;
+}
+
+InstrumentFriction parse_friction(JsonFields f) {
+  InstrumentFriction out;
+  out.vessel_static = f.nonnegative("vessel_static");
+  out.vessel_dynamic = f.nonnegative("vessel_dynamic");
+  out.lumen = f.nonnegative("lumen");
+  for (auto [key, v] :
+       {std::pair{"vessel_static", out.vessel_static},
+        std::pair{"vessel_dynamic", out.vessel_dynamic}, std::pair{"lumen", out.lumen}}) {
+    if (v > 2.0) f.fail(key, "expected a coefficient of at most 2");
+  }
+  if (out.vessel_dynamic > out.vessel_static) {
+    f.fail("vessel_dynamic", "expected at most vessel_static");
+  }
+  f.finish();
+  return out;
+}
+
+InstrumentRadiopacity parse_radiopacity(JsonFields r, double length) {
+  InstrumentRadiopacity out;
+  out.material = r.string("material");
+  if (out.material.empty()) r.fail("material", "expected a material name");
+  out.attenuation_60kev = r.nonnegative("attenuation_60kev_per_cm") * kPerCm;
+  out.attenuation_80kev = r.nonnegative("attenuation_80kev_per_cm") * kPerCm;
+  out.coil_length = r.nonnegative_or("coil_length_mm", 0.0) * kMm;
+  if (out.coil_length > length) r.fail("coil_length_mm", "expected at most length_mm");
+  const bool coil = out.coil_length > 0.0;
+  // The coil's attenuation is needed exactly when there is a coil.
+  for (auto [key, dst] :
+       {std::pair{"coil_attenuation_60kev_per_cm", &out.coil_attenuation_60kev},
+        std::pair{"coil_attenuation_80kev_per_cm", &out.coil_attenuation_80kev}}) {
+    if (r.has(key) != coil) {
+      r.fail(key, coil ? "expected this key (coil_length_mm > 0)"
+                       : "expected no coil attenuation without coil_length_mm > 0");
+    }
+    if (coil) *dst = r.nonnegative(key) * kPerCm;
+  }
+  if (const Json* m = r.get("markers_mm_from_tip")) {
+    const std::string field = r.field("markers_mm_from_tip");
+    if (!m->is_array()) {
+      throw InputError(r.source(), field,
+                       internal::cat("expected an array, got ", internal::describe_json(*m)));
+    }
+    for (std::size_t i = 0; i < m->size(); ++i) {
+      const std::string fi = internal::index_path(field, i);
+      const double d = require_nonnegative(r.as_number((*m)[i], fi), r.source(), fi) * kMm;
+      if (d > length) throw InputError(r.source(), fi, "expected at most length_mm");
+      out.markers.push_back(d);
+    }
+  }
+  r.finish();
+  return out;
+}
+
+}  // namespace
+
+const char* to_string(InstrumentKind k) {
+  return k == InstrumentKind::kGuidewire ? "guidewire" : "catheter";
+}
+
+double InstrumentSpec::shaped_length() const {
+  double s = 0.0;
+  for (const auto& t : tip_shape) s += t.length;
+  return s;
+}
+
+InstrumentSpec parse_instrument(std::string_view json_text, const std::string& source,
+                                const std::string& expected_name) {
+  const Json doc = internal::parse_json_text(json_text, source);
+  JsonFields f(doc, source, "");
+  InstrumentSpec s;
+  s.source = source;
+
+  s.name = f.string("name");
+  if (!valid_name(s.name)) {
+    f.fail("name",
+           internal::cat("expected 1-64 characters from a-z 0-9 - _ . , got \"", s.name, "\""));
+  }
+  if (!expected_name.empty() && s.name != expected_name) {
+    f.fail("name",
+           internal::cat("expected \"", expected_name, "\" (the file name), got \"", s.name, "\""));
+  }
+  s.description = f.string_or("description", "");
+  f.get("comment");  // free text for editors, ignored
+
+  const std::string kind = f.string("kind");
+  if (kind == "guidewire") {
+    s.kind = InstrumentKind::kGuidewire;
+  } else if (kind == "catheter") {
+    s.kind = InstrumentKind::kCatheter;
+  } else {
+    f.fail("kind", internal::cat("expected \"guidewire\" or \"catheter\", got \"", kind, "\""));
+  }
+
+  s.length = f.in_range("length_mm", 0.0, 5000.0) * kMm;
+  s.outer_diameter =
+      one_of(f, {{"od_in", kInch}, {"od_fr", kFrench}, {"od_mm", kMm}}, true, 0.0, 10.0e-3);
+  s.inner_diameter = one_of(f, {{"id_in", kInch}, {"id_mm", kMm}}, false, -1e-300, 10.0e-3);
+  const char* id_key = f.has("id_in") ? "id_in" : "id_mm";
+  if (s.kind == InstrumentKind::kCatheter && !(s.inner_diameter > 0.0)) {
+    f.fail(id_key, "expected a positive inner diameter (id_mm or id_in) for a catheter");
+  }
+  if (s.inner_diameter >= s.outer_diameter) {
+    f.fail(id_key, "expected an inner diameter less than the outer diameter");
+  }
+
+  s.youngs_modulus = f.in_range("youngs_modulus_gpa", 0.0, 1000.0) * 1e9;
+  s.tip_length = f.nonnegative("tip_length_mm") * kMm;
+  if (s.tip_length > s.length) f.fail("tip_length_mm", "expected at most length_mm");
+  s.tip_modulus_ratio = f.in_range("tip_modulus_ratio", 0.0, 1.0);
+  s.poisson = f.in_range_or("poisson", -1.0, 0.5, 0.3);
+  s.density = f.in_range("density_kg_m3", 0.0, 25000.0);
+
+  const Json& sections = f.array("tip_sections");
+  for (std::size_t i = 0; i < sections.size(); ++i) {
+    s.tip_shape.push_back(
+        parse_section(sections[i], source, internal::index_path("tip_sections", i)));
+  }
+  if (s.shaped_length() > s.length) {
+    f.fail("tip_sections", "expected the sections to be no longer than length_mm");
+  }
+
+  s.friction = parse_friction(f.object("friction"));
+  s.radiopacity = parse_radiopacity(f.object("radiopacity"), s.length);
+  f.finish();
+  return s;
+}
+
+InstrumentSpec load_instrument(const std::filesystem::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) throw InputError(file.string(), "file", "expected a readable file");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return parse_instrument(ss.str(), file.string(), file.stem().string());
+}
+
+const InstrumentSpec* InstrumentCatalogue::find(std::string_view name) const {
+  for (const auto& s : items) {
+    if (s.name == name) return &s;
+  }
+  return nullptr;
+}
+
+const InstrumentSpec& InstrumentCatalogue::get(std::string_view name) const {
+  if (const auto* s = find(name)) return *s;
+  std::string what = "expected one of: ";
+  for (std::size_t i = 0; i < items.size(); ++i) {
+    if (i) what += ", ";
+    what += items[i].name;
+  }
+  what += "; got \"";
+  what += name;
+  what += "\"";
+  throw InputError("instrument", "name", what);
+}
+
+InstrumentCatalogue load_catalogue(const std::filesystem::path& dir) {
+  std::error_code ec;
+  if (!std::filesystem::is_directory(dir, ec)) {
+    throw InputError(dir.string(), "directory", "expected a folder of instrument files");
+  }
+  std::vector<std::filesystem::path> files;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    if (e.is_regular_file() && e.path().extension() == ".json") files.push_back(e.path());
+  }
+  std::sort(files.begin(), files.end());
+  InstrumentCatalogue cat;
+  for (const auto& f : files) cat.items.push_back(load_instrument(f));
+  // Names equal file stems, so they are unique within one folder.
+  return cat;
+}
+
+std::filesystem::path default_catalogue_dir() {
+  if (const char* env = std::getenv("VCSIM_INSTRUMENTS_DIR"); env && *env) return env;
+  return VCSIM_DEFAULT_INSTRUMENTS_DIR;
+}
+
+}  // namespace vcsim

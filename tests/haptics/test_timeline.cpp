@@ -1,0 +1,194 @@
+// The scripted timeline: interpolation rules, deterministic replay, no allocation once warm,
+// and bad files named by file and field.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <new>
+
+#include "vcsim/core.h"
+#include "vcsim/haptics.h"
+
+namespace {
+std::atomic<long> g_allocations{0};
+}
+
+#ifndef VCSIM_SANITIZE
+void* operator new(std::size_t n) {
+  g_allocations.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+// noinline: once inlined, GCC sees malloc'd memory meet operator new and warns of a mismatch.
+[[gnu::noinline]] void operator delete(void* p) noexcept {
+  std::free(p);
+}
+[[gnu::noinline]] void operator delete(void* p, std::size_t) noexcept {
+  std::free(p);
+}
+#endif
+
+namespace {
+
+using vcsim::DeviceCommands;
+using vcsim::ScriptedTimeline;
+using Mode = vcsim::InstrumentCommand::Mode;
+
+const std::filesystem::path kExample =
+    std::filesystem::path(VCSIM_HAPTICS_TEST_DIR) / "example_timeline.json";
+
+DeviceCommands at(ScriptedTimeline& tl, double t) {
+  DeviceCommands c;
+  tl.poll(t, c);
+  return c;
+}
+
+TEST(Timeline, FollowsTheDocumentedRules) {
+  ScriptedTimeline tl = ScriptedTimeline::load(kExample);
+  EXPECT_DOUBLE_EQ(tl.duration(), 6.5);
+  ASSERT_EQ(tl.instrument_names(), (std::vector<std::string>{"catheter", "guidewire"}));
+
+  // Position keyframes: linear in between, held after the last.
+  auto c = at(tl, 1.0);
+  EXPECT_EQ(c.time_s, 1.0);
+  ASSERT_EQ(c.instruments.size(), 2u);
+  EXPECT_EQ(c.instruments[1].name, "guidewire");
+  EXPECT_EQ(c.instruments[1].mode, Mode::kPosition);
+  EXPECT_DOUBLE_EQ(c.instruments[1].translation_mm, 25.0);
+  EXPECT_DOUBLE_EQ(c.instruments[1].rotation_deg, 45.0);
+  c = at(tl, 10.0);
+  EXPECT_DOUBLE_EQ(c.find("guidewire")->translation_mm, 50.0);
+  EXPECT_DOUBLE_EQ(c.find("guidewire")->rotation_deg, 90.0);
+
+  // A position keyframe followed by a velocity one holds; velocity holds its speed.
+  EXPECT_DOUBLE_EQ(at(tl, 2.4).find("catheter")->translation_mm, 0.0);
+  EXPECT_EQ(at(tl, 2.4).find("catheter")->mode, Mode::kPosition);
+  c = at(tl, 3.0);
+  EXPECT_EQ(c.find("catheter")->mode, Mode::kVelocity);
+  EXPECT_DOUBLE_EQ(c.find("catheter")->translation_mm, 10.0);
+  EXPECT_DOUBLE_EQ(at(tl, 4.49).find("catheter")->translation_mm, 10.0);
+  EXPECT_EQ(at(tl, 4.5).find("catheter")->mode, Mode::kPosition);
+  EXPECT_DOUBLE_EQ(at(tl, 4.5).find("catheter")->translation_mm, 20.0);
+
+  // Before the first keyframe: at the script's starting position.
+  EXPECT_DOUBLE_EQ(at(tl, -1.0).find("guidewire")->translation_mm, 0.0);
+
+  // Flow and buttons hold; balloon pressure ramps between its keyframes, 0 before the first.
+  EXPECT_DOUBLE_EQ(at(tl, 2.0).syringe_flow_ml_s, 0.0);
+  EXPECT_DOUBLE_EQ(at(tl, 3.0).syringe_flow_ml_s, 2.0);
+  EXPECT_EQ(at(tl, 3.0).buttons, 1u);
+  EXPECT_DOUBLE_EQ(at(tl, 5.0).syringe_flow_ml_s, 0.0);
+  EXPECT_EQ(at(tl, 5.0).buttons, 0u);
+  EXPECT_DOUBLE_EQ(at(tl, 3.0).balloon_pressure_atm, 0.0);
+  EXPECT_DOUBLE_EQ(at(tl, 5.5).balloon_pressure_atm, 4.0);
+  EXPECT_DOUBLE_EQ(at(tl, 7.0).balloon_pressure_atm, 8.0);
+
+  // Feedback is kept for inspection.
+  const std::vector<vcsim::ForceFeedback> fb = {{"guidewire", 0.5, 0.001}};
+  tl.publish(fb);
+  ASSERT_EQ(tl.last_feedback().size(), 1u);
+  EXPECT_EQ(tl.last_feedback()[0].axial_force_n, 0.5);
+}
+
+bool same(const DeviceCommands& a, const DeviceCommands& b) {
+  if (a.instruments.size() != b.instruments.size()) return false;
+  for (std::size_t i = 0; i < a.instruments.size(); ++i) {
+    const auto &x = a.instruments[i], &y = b.instruments[i];
+    if (x.name != y.name || x.mode != y.mode ||
+        std::memcmp(&x.translation_mm, &y.translation_mm, sizeof(double)) != 0 ||
+        std::memcmp(&x.rotation_deg, &y.rotation_deg, sizeof(double)) != 0)
+      return false;
+  }
+  return std::memcmp(&a.time_s, &b.time_s, sizeof(double)) == 0 &&
+         std::memcmp(&a.balloon_pressure_atm, &b.balloon_pressure_atm, sizeof(double)) == 0 &&
+         std::memcmp(&a.syringe_flow_ml_s, &b.syringe_flow_ml_s, sizeof(double)) == 0 &&
+         a.buttons == b.buttons;
+}
+
+TEST(Timeline, ReplaysToTheSameCommandsBitForBit) {
+  ScriptedTimeline a = ScriptedTimeline::load(kExample);
+  ScriptedTimeline b = ScriptedTimeline::load(kExample);
+  const int steps = 8000;  // 1 kHz over 8 s, past the last keyframe
+  std::vector<DeviceCommands> first(steps);
+  for (int i = 0; i < steps; ++i) a.poll(i * 1e-3, first[i]);
+  // A second instance, and the same instance polled backwards (state-free: a pure function of t).
+  DeviceCommands c;
+  for (int i = 0; i < steps; ++i) {
+    b.poll(i * 1e-3, c);
+    ASSERT_TRUE(same(first[i], c)) << "step " << i;
+  }
+  for (int i = steps - 1; i >= 0; --i) {
+    a.poll(i * 1e-3, c);
+    ASSERT_TRUE(same(first[i], c)) << "step " << i;
+  }
+}
+
+TEST(Timeline, WarmPollAllocatesNothing) {
+#ifdef VCSIM_SANITIZE
+  GTEST_SKIP() << "the sanitizer runtime owns operator new";
+#else
+  ScriptedTimeline tl = ScriptedTimeline::load(kExample);
+  DeviceCommands c;
+  tl.poll(0.0, c);
+  const long before = g_allocations.load();
+  for (int i = 0; i < 5000; ++i) tl.poll(i * 1e-3, c);
+  EXPECT_EQ(g_allocations.load() - before, 0);
+#endif
+}
+
+std::string error_of(const std::string& text) {
+  try {
+    ScriptedTimeline::parse(text, "scripts/push.json");
+  } catch (const vcsim::InputError& e) {
+    EXPECT_EQ(e.source(), "scripts/push.json");
+    return std::string(e.field()) + " | " + e.what();
+  }
+  return "";
+}
+
+TEST(Timeline, BadFilesNameFileAndField) {
+  struct Case {
+    const char* text;
+    const char* field;
+    const char* expected;
+  };
+  const Case cases[] = {
+      {R"({"keyframes": []})", "keyframes", "at least one"},
+      {R"({"keyframe": []})", "keyframes", "required"},
+      {R"({"keyframes": [{"t_s": 1}, {"t_s": 1}]})", "keyframes[1].t_s", "after the previous"},
+      {R"({"keyframes": [{"t_s": -1}]})", "keyframes[0].t_s", ">= 0"},
+      {R"({"keyframes": [{"t": 0}]})", "keyframes[0].t_s", "required"},
+      {R"({"keyframes": [{"t_s": 0, "ballon_pressure_atm": 2}]})",
+       "keyframes[0].ballon_pressure_atm", "unknown key"},
+      {R"({"keyframes": [{"t_s": 0, "instruments": {"gw": {"translation_mm": 1}}}]})",
+       "keyframes[0].instruments.gw.rotation_deg", "required"},
+      {R"({"keyframes": [{"t_s": 0, "instruments": {"gw": {"translation_mm": 1,
+          "rotation_deg": 0, "mode": "torque"}}}]})",
+       "keyframes[0].instruments.gw.mode", "velocity"},
+      {R"({"keyframes": [{"t_s": 0, "instruments": {"gw": {"translation_mm": 1e9,
+          "rotation_deg": 0}}}]})",
+       "keyframes[0].instruments.gw.translation_mm", "within"},
+      {R"({"keyframes": [{"t_s": 0, "instruments": {"gw": {"translation_mm": 0,
+          "rotation_deg": 1e8, "mode": "velocity"}}}]})",
+       "keyframes[0].instruments.gw.rotation_deg", "spin"},
+      {R"({"keyframes": [{"t_s": 0, "instruments": {"gw": 3}}]})", "keyframes[0].instruments.gw",
+       "expected an object"},
+      {R"({"keyframes": [{"t_s": 0, "balloon_pressure_atm": 99}]})",
+       "keyframes[0].balloon_pressure_atm", "[0, 30]"},
+      {R"({"keyframes": [{"t_s": 0, "syringe_flow_ml_s": "fast"}]})",
+       "keyframes[0].syringe_flow_ml_s", "expected a number"},
+      {R"({"keyframes": [{"t_s": 0, "buttons": 2.5}]})", "keyframes[0].buttons", "integer"},
+      {R"({"keyframes": [{"t_s": 0})", "json", "valid JSON"},
+  };
+  for (const auto& c : cases) {
+    const std::string err = error_of(c.text);
+    EXPECT_EQ(err.rfind(std::string(c.field) + " | scripts/push.json: " + c.field + ": ", 0), 0u)
+        << c.text << "\n -> " << err;
+    EXPECT_NE(err.find(c.expected), std::string::npos) << c.text << "\n -> " << err;
+  }
+  EXPECT_THROW(ScriptedTimeline::load("/nonexistent/timeline.json"), vcsim::InputError);
+}
+
+}  // namespace

@@ -1,0 +1,240 @@
+// The shipped catalogue loads, converts units, and builds a rod for every entry; bad files are
+// rejected with errors naming the file and the field.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <nlohmann/json.hpp>
+#include <numbers>
+#include <set>
+
+#include "vcsim/instruments.h"
+
+namespace {
+
+using nlohmann::json;
+using vcsim::InputError;
+using vcsim::InstrumentKind;
+using vcsim::InstrumentSpec;
+
+const std::filesystem::path kData = VCSIM_INSTRUMENTS_DATA;
+
+vcsim::InstrumentCatalogue shipped() {
+  return vcsim::load_catalogue(kData);
+}
+
+TEST(Catalogue, ShipsTheInstrumentsTheIssueAsksFor) {
+  const auto cat = shipped();
+  int wires = 0, catheters = 0;
+  for (const auto& s : cat.items) (s.kind == InstrumentKind::kGuidewire ? wires : catheters)++;
+  EXPECT_GE(wires, 6);
+  EXPECT_GE(catheters, 3);
+  for (const char* name :
+       {"wire-035-j3-hydrophilic", "wire-035-angled-hydrophilic", "wire-035-stiff-exchange",
+        "wire-014-floppy", "wire-014-intermediate", "wire-018-support", "catheter-jl4-6f",
+        "catheter-jr4-6f", "catheter-al2-6f"}) {
+    EXPECT_NE(cat.find(name), nullptr) << name;
+  }
+  // Sorted by name, names unique.
+  for (std::size_t i = 1; i < cat.items.size(); ++i) {
+    EXPECT_LT(cat.items[i - 1].name, cat.items[i].name);
+  }
+}
+
+TEST(Catalogue, ClinicalUnitsConvertToSi) {
+  const auto cat = shipped();
+  const auto& j = cat.get("wire-035-j3-hydrophilic");
+  EXPECT_NEAR(j.outer_diameter, 0.889e-3, 1e-6);  // 0.035" (clinical.md)
+  EXPECT_DOUBLE_EQ(j.length, 1.5);
+  EXPECT_DOUBLE_EQ(j.inner_diameter, 0.0);
+  ASSERT_EQ(j.tip_shape.size(), 1u);
+  EXPECT_DOUBLE_EQ(j.tip_shape[0].radius, 3e-3);  // "3 mm J"
+  EXPECT_NEAR(j.tip_shape[0].angle, std::numbers::pi, 1e-12);
+  EXPECT_DOUBLE_EQ(j.radiopacity.attenuation_60kev, 760.0);  // 7.6 /cm
+
+  const auto& floppy = cat.get("wire-014-floppy");
+  EXPECT_NEAR(floppy.outer_diameter, 0.356e-3, 1e-6);
+  EXPECT_DOUBLE_EQ(floppy.radiopacity.coil_length, 0.03);
+
+  const auto& jl = cat.get("catheter-jl4-6f");
+  EXPECT_EQ(jl.kind, InstrumentKind::kCatheter);
+  EXPECT_NEAR(jl.outer_diameter, 2.0e-3, 1e-9);  // 6F
+  EXPECT_NEAR(jl.inner_diameter, 0.070 * 25.4e-3, 1e-9);
+  EXPECT_DOUBLE_EQ(jl.length, 1.0);
+  // JL 4: 4 cm between the primary and secondary curves.
+  ASSERT_GE(jl.tip_shape.size(), 3u);
+  EXPECT_EQ(jl.tip_shape[0].kind, vcsim::TipSection::Kind::kArc);
+  EXPECT_EQ(jl.tip_shape[1].kind, vcsim::TipSection::Kind::kStraight);
+  EXPECT_DOUBLE_EQ(jl.tip_shape[1].length, 0.04);
+  EXPECT_EQ(jl.tip_shape[2].kind, vcsim::TipSection::Kind::kArc);
+}
+
+TEST(Catalogue, EveryEntryBuildsABoundedRodFinerAtTheTip) {
+  for (const auto& s : shipped().items) {
+    SCOPED_TRACE(s.name);
+    const vcsim::RodDef def = vcsim::to_rod_def(s, {});
+    const vcsim::RodModel m = vcsim::build_rod(def);
+    EXPECT_LE(m.n, 512);
+    EXPECT_NEAR(m.node_s.back(), s.length, 1e-12);
+    EXPECT_DOUBLE_EQ(m.outer_radius[0], 0.5 * s.outer_diameter);
+    EXPECT_DOUBLE_EQ(m.inner_radius[0], 0.5 * s.inner_diameter);
+    // The soft tip is soft, the shaft is not.
+    EXPECT_DOUBLE_EQ(m.youngs[0], s.youngs_modulus);
+    if (s.tip_length > 0) {
+      EXPECT_NEAR(m.youngs.back(), s.youngs_modulus * s.tip_modulus_ratio, 1e-6 * s.youngs_modulus);
+    }
+    // The shaped part and the soft tip are resolved at 1-2 mm per segment.
+    const double fine = std::max(s.shaped_length(), s.tip_length);
+    for (int j = 0; j < m.m; ++j) {
+      if (m.edge_s[j] >= s.length - fine) {
+        EXPECT_LE(m.rest_length[j], 2.0e-3) << "edge " << j;
+      }
+    }
+    // Coarser toward the base.
+    EXPECT_GE(m.rest_length.front(), m.rest_length.back() * (1 - 1e-9));
+    // The rest shape follows the design: a J wire's tip comes back toward the shaft.
+    if (s.name == "wire-035-j3-hydrophilic") {
+      const vcsim::Vec3 d_tip = m.rest_position[m.n - 1] - m.rest_position[m.n - 2];
+      EXPECT_LT(d_tip.z(), 0.0);  // base direction is +z; the 180 degree J points back
+    }
+  }
+}
+
+// ---- bad files ----
+
+json valid_wire() {
+  return json::parse(R"({
+    "name": "bad", "kind": "guidewire", "length_mm": 1500, "od_in": 0.035,
+    "youngs_modulus_gpa": 10, "tip_length_mm": 30, "tip_modulus_ratio": 0.2,
+    "density_kg_m3": 6450,
+    "tip_sections": [{"straight_mm": 5}, {"arc": {"radius_mm": 3, "angle_deg": 90}},
+                     {"arc": {"radius_mm": 3, "angle_deg": 90, "plane_deg": 45}}],
+    "friction": {"vessel_static": 0.1, "vessel_dynamic": 0.05, "lumen": 0.04},
+    "radiopacity": {"material": "nitinol", "attenuation_60kev_per_cm": 7.6,
+                    "attenuation_80kev_per_cm": 3.8}
+  })");
+}
+
+// Parses `doc` as data/instruments/bad.json and returns the error message ("" if none).
+std::string error_of(const json& doc) {
+  try {
+    vcsim::parse_instrument(doc.dump(), "data/instruments/bad.json", "bad");
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(CatalogueErrors, ValidBaseDocumentParses) {
+  EXPECT_EQ(error_of(valid_wire()), "");
+}
+
+struct BadCase {
+  const char* label;
+  std::function<void(json&)> edit;
+  const char* field;     // expected "file: field:" prefix after the file name
+  const char* expected;  // a fragment of the explanation
+};
+
+TEST(CatalogueErrors, NameFileAndField) {
+  const std::vector<BadCase> cases = {
+      {"negative arc radius", [](json& j) { j["tip_sections"][2]["arc"]["radius_mm"] = -3; },
+       "tip_sections[2].arc.radius_mm", "expected a positive number, got -3"},
+      {"typo key", [](json& j) { j["lenght_mm"] = 1; }, "lenght_mm", "unknown key"},
+      {"missing kind", [](json& j) { j.erase("kind"); }, "kind", "required"},
+      {"unknown kind", [](json& j) { j["kind"] = "stent"; }, "kind", "guidewire"},
+      {"two ODs", [](json& j) { j["od_fr"] = 3; }, "od_fr", "only one of"},
+      {"no OD", [](json& j) { j.erase("od_in"); }, "od_in, od_fr, od_mm", "one of"},
+      {"string for number", [](json& j) { j["length_mm"] = "1500"; }, "length_mm",
+       "expected a number"},
+      {"absurd length", [](json& j) { j["length_mm"] = 1e7; }, "length_mm", "expected a value"},
+      {"modulus ratio", [](json& j) { j["tip_modulus_ratio"] = 1.5; }, "tip_modulus_ratio",
+       "(0, 1]"},
+      {"soft tip too long", [](json& j) { j["tip_length_mm"] = 2000; }, "tip_length_mm",
+       "at most length_mm"},
+      {"both section kinds",
+       [](json& j) {
+         j["tip_sections"][0]["arc"] = {{"radius_mm", 1}, {"angle_deg", 5}};
+       },
+       "tip_sections[0]", "exactly one of"},
+      {"zero angle", [](json& j) { j["tip_sections"][1]["arc"]["angle_deg"] = 0; },
+       "tip_sections[1].arc.angle_deg", "nonzero"},
+      {"arc typo", [](json& j) { j["tip_sections"][1]["arc"]["radius"] = 3; },
+       "tip_sections[1].arc.radius", "unknown key"},
+      {"section not object", [](json& j) { j["tip_sections"][0] = 5; }, "tip_sections[0]",
+       "expected an object"},
+      {"sections not array", [](json& j) { j["tip_sections"] = 5; }, "tip_sections",
+       "expected an array"},
+      {"dynamic > static", [](json& j) { j["friction"]["vessel_dynamic"] = 0.5; },
+       "friction.vessel_dynamic", "at most vessel_static"},
+      {"friction missing", [](json& j) { j.erase("friction"); }, "friction", "required"},
+      {"negative attenuation", [](json& j) { j["radiopacity"]["attenuation_60kev_per_cm"] = -1; },
+       "radiopacity.attenuation_60kev_per_cm", ">= 0"},
+      {"coil without attenuation", [](json& j) { j["radiopacity"]["coil_length_mm"] = 30; },
+       "radiopacity.coil_attenuation_60kev_per_cm", "coil_length_mm"},
+      {"marker beyond length",
+       [](json& j) {
+         j["radiopacity"]["markers_mm_from_tip"] = {0, 5000};
+       },
+       "radiopacity.markers_mm_from_tip[1]", "at most length_mm"},
+      {"catheter without lumen", [](json& j) { j["kind"] = "catheter"; }, "id_mm",
+       "positive inner diameter"},
+      {"lumen wider than OD", [](json& j) { j["id_mm"] = 1.0; }, "id_mm", "less than the outer"},
+      {"name mismatch", [](json& j) { j["name"] = "other"; }, "name", "the file name"},
+      {"name characters", [](json& j) { j["name"] = "Bad Name"; }, "name", "a-z"},
+      {"NaN-like null", [](json& j) { j["density_kg_m3"] = nullptr; }, "density_kg_m3",
+       "expected a number, got null"},
+  };
+  for (const auto& c : cases) {
+    json doc = valid_wire();
+    c.edit(doc);
+    const std::string err = error_of(doc);
+    std::string prefix = "data/instruments/bad.json: ";
+    prefix += c.field;
+    prefix += ": ";
+    EXPECT_EQ(err.rfind(prefix, 0), 0u) << c.label << " -> " << err;
+    EXPECT_NE(err.find(c.expected), std::string::npos) << c.label << " -> " << err;
+  }
+}
+
+TEST(CatalogueErrors, SyntaxErrorNamesTheFile) {
+  try {
+    vcsim::parse_instrument("{\"name\": ", "data/instruments/x.json");
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.source(), "data/instruments/x.json");
+    EXPECT_EQ(e.field(), "json");
+  }
+  EXPECT_THROW(vcsim::parse_instrument("[1, 2]", "x.json"), InputError);
+}
+
+TEST(CatalogueErrors, LoadingAFolderNamesTheBadFile) {
+  std::string tag = "vcsim_cat_";
+  tag += std::to_string(::getpid());
+  const auto dir = std::filesystem::temp_directory_path() / tag;
+  std::filesystem::create_directories(dir);
+  std::filesystem::copy_file(kData / "catheter-jl4-6f.json", dir / "catheter-jl4-6f.json",
+                             std::filesystem::copy_options::overwrite_existing);
+  json bad = valid_wire();
+  bad["name"] = "broken";
+  bad["friction"]["lumen"] = -0.1;
+  std::ofstream(dir / "broken.json") << bad.dump();
+  try {
+    vcsim::load_catalogue(dir);
+    ADD_FAILURE() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.source(), (dir / "broken.json").string());
+    EXPECT_EQ(e.field(), "friction.lumen");
+  }
+  std::filesystem::remove(dir / "broken.json");
+  EXPECT_EQ(vcsim::load_catalogue(dir).items.size(), 1u);
+  std::filesystem::remove_all(dir);
+
+  EXPECT_THROW(vcsim::load_catalogue(dir), InputError);  // gone
+  EXPECT_THROW(shipped().get("no-such-wire"), InputError);
+}
+
+}  // namespace
