@@ -68,3 +68,34 @@ std::vector<std::pair<DistanceMethod, int>> compression_table_rows();
 double outside_tube(const std::vector<Vec3>& centreline, double radius, const Vec3& p);
 
 }  // namespace vcsim
+
+namespace vcsim {
+
+// A guidewire inside a catheter, both from the catalogue, entering one sheath into a bent
+// vessel (paper Fig. 10 set-up). Runs at dt with quasi-static mass scaling like the compression
+// experiment.
+struct PairOptions {
+  std::string wire = "wire-035-stiff-exchange";
+  std::string catheter = "catheter-jl4-6f";
+  int nodes = 512;               // per instrument (at most)
+  double dt = 1e-3;              // s
+  double lumen_radius = 4e-3;    // m
+  double catheter_depth = 0.26;  // m inserted at the start
+  double wire_depth = 0.29;      // m inserted at the start (ahead of the catheter tip)
+  bool collisions = true;
+  bool gravity = false;
+  std::string catalogue_dir;  // empty: the default catalogue
+  void validate(const std::string& source) const;
+};
+
+struct PairScene {
+  TriangleMesh mesh;
+  AabbTree tree;
+  std::vector<Instrument> instruments;  // [0] wire, [1] catheter
+  std::vector<Coupling> couplings;      // wire in catheter
+  SolverSettings settings;
+  Lumen lumen() const { return Lumen{&mesh, &tree, 0.0}; }
+};
+PairScene make_pair_scene(const PairOptions& opt);
+
+}  // namespace vcsim

@@ -227,10 +227,10 @@ void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
         best_t = t;
       }
     }
+    // Offset to the closest point of the outer centreline: perpendicular to the edge inside it,
+    // toward the vertex where the projection is clamped (at a bend of the polyline).
     const Vec3 a = out.state.x[best], b = out.state.x[best + 1];
-    const Vec3 tangent = (b - a).normalized();
-    Vec3 off = p - (a + best_t * (b - a));
-    off -= off.dot(tangent) * tangent;
+    const Vec3 off = p - (a + best_t * (b - a));
     const double r = off.norm();
     if (r < 1e-12) continue;
     const Vec3 rel_v =
@@ -245,7 +245,6 @@ void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
 // further than the clearance from the outer centreline; lumen friction on the relative sliding.
 void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverSettings& set) {
   const double dt = set.rod.dt;
-  const double beta = set.penetration_correction;
   for (CoaxialContact& c : cp.contacts) {
     const double wp = in.ws.inv_mass[c.node];
     const double wa = out.ws.inv_mass[c.segment] * (1 - c.t);
@@ -263,8 +262,9 @@ void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverS
       out.ws.node_impulse[c.segment] -= (1 - c.t) * impulse;
       out.ws.node_impulse[c.segment + 1] -= c.t * impulse;
     };
-    // Radial: v_rel . n <= -excess / dt (a fraction beta of a violation).
-    const double target = c.excess > 0.0 ? -beta * c.excess / dt : -c.excess / dt;
+    // Radial: v_rel . n <= -excess / dt: a violation is removed in full (a wire outside its
+    // catheter is visible at once), a gap may close exactly.
+    const double target = -c.excess / dt;
     const Vec3 rel = vp - ((1 - c.t) * va + c.t * vb);
     const double ln = std::max(0.0, c.lambda_n + (rel.dot(c.normal) - target) / k);
     apply(-(ln - c.lambda_n) * c.normal);
@@ -393,8 +393,10 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
       for (Instrument& in : insts) rod_distance_iteration(in.model, rs, in.state, in.ws);
     }
     const double b = tick();
-    for (Coupling& c : couplings) solve_coupling(c, insts[c.inner], insts[c.outer], set);
+    // Walls first, coupling last: the wire must end each iteration inside the catheter, and
+    // the catheter's wall contacts would otherwise move it away from the wire.
     for (Instrument& in : insts) solve_contacts(in, set);
+    for (Coupling& c : couplings) solve_coupling(c, insts[c.inner], insts[c.outer], set);
     if (prof) {
       t_dist += b - a;
       t_cont += tick() - b;
