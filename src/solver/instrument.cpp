@@ -114,7 +114,10 @@ void detect_contacts(Instrument& inst, const Lumen& lumen, const SolverSettings&
     }
     inst.query_nodes[nq] = i;
     inst.query_points[nq] = st.x[i];
-    inst.query_radii[nq] = reach + set.coherence_margin;
+    // A node that touched the wall last step is queried again next step anyway: the wider
+    // radius that buys skipping is wasted on it.
+    const bool was_touching = inst.clearance[i] == 0.0 && st.steps > 0;
+    inst.query_radii[nq] = reach + (was_touching ? 0.0 : set.coherence_margin);
     ++nq;
   }
   if (nq == 0) return;
@@ -136,7 +139,7 @@ void detect_contacts(Instrument& inst, const Lumen& lumen, const SolverSettings&
       continue;
     }
     const double depth = h.centre_outside ? r + h.distance : r - h.distance;
-    const double reach = inst.query_radii[k] - set.coherence_margin - r;
+    const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt - r;
     if (!h.centre_outside && depth < -reach) {
       inst.clearance[i] = h.distance;  // near, but not within reach this step
       continue;
