@@ -80,7 +80,7 @@ TEST(RodInvariants, LocalSweepsImproveWithIterationsAndGlobalIsExactInOne) {
     sim.s.iterations = iterations;
     sim.s.dt = estimate_stable_dt(sim.md, sim.s);
     double w = 0.0;
-    for (int k = 0; k < 200; ++k) {
+    for (int k = 0; k < 80; ++k) {
       sim.steps(50);
       w = std::max(w, max_stretch(sim.md, sim.st));
     }
@@ -89,9 +89,9 @@ TEST(RodInvariants, LocalSweepsImproveWithIterationsAndGlobalIsExactInOne) {
   const double g1 = worst(DistanceMethod::kGlobal, 1);
   EXPECT_LT(g1, 1e-6);
   for (auto m : {DistanceMethod::kLocalGS, DistanceMethod::kLocalJacobi}) {
-    const double w1 = worst(m, 1), w10 = worst(m, 10), w100 = worst(m, 100);
-    EXPECT_GT(w1, w10) << to_string(m);
-    EXPECT_GT(w10, w100) << to_string(m);
+    const double w1 = worst(m, 1), w5 = worst(m, 5), w25 = worst(m, 25);
+    EXPECT_GT(w1, w5) << to_string(m);
+    EXPECT_GT(w5, w25) << to_string(m);
     EXPECT_GT(w1, 10 * g1) << to_string(m);
   }
 }

@@ -95,7 +95,7 @@ TEST(RodValidation, ElasticaHoldsAtAnotherResolutionAndTimeStep) {
   const auto coarse = run_validation_case("elastica-tip", o);
   expect_within(find(coarse, "y_tip/L"), 0.01);
   o.segments = 40;
-  o.dt = 5e-7;  // a quarter of the stability estimate
+  o.dt = 1e-6;  // about half of the stability estimate
   expect_within(find(run_validation_case("elastica-tip", o), "y_tip/L"), 0.01);
 }
 
@@ -133,7 +133,9 @@ TEST(RodValidation, EulerBucklingStraightBelowBuckledAbove) {
 }
 
 TEST(RodValidation, FirstTwoCantileverFrequenciesWithinThreePercent) {
-  const auto rs = run_validation_case("frequency", opts());
+  ValidationOptions o = opts();
+  o.segments = 24;  // f1 error about 0.2 % here (docs/validation.md), and cheap under asan
+  const auto rs = run_validation_case("frequency", o);
   ASSERT_EQ(rs.size(), 2u);
   expect_within(rs[0], 0.03);
   expect_within(rs[1], 0.03);
@@ -162,6 +164,7 @@ TEST(RodValidation, HangingRodPulledByTenWeightsKeepsItsLength) {
 
 TEST(RodValidation, ThreeMillimetreJTipKeepsItsRadius) {
   ValidationOptions o = opts();
+  o.segments = 32;
   o.j_radius = 3e-3;
   o.j_angle_deg = 180;
   const auto r = run_validation_case("shaped-tip", o)[0];
