@@ -14,11 +14,6 @@ namespace vcsim::app {
 
 namespace {
 
-double median(std::vector<double> v) {
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-  return v[v.size() / 2];
-}
-
 struct RodBenchOptions {
   int nodes = 256;
   int steps = 20000;

@@ -10,6 +10,7 @@
 #include <span>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace vcsim {
 
@@ -50,6 +51,9 @@ class StateHasher {
  private:
   std::uint64_t h_ = 1469598103934665603ull;
 };
+
+// Median of a sample (taken by value: reorders a copy). 0 for an empty sample.
+double median(std::vector<double> sample);
 
 // Monotonic clock in microseconds for step profiling.
 inline double now_us() {

@@ -1,5 +1,6 @@
 #include "vcsim/core.h"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -49,6 +50,13 @@ double require_in_range(double v, double lo_exclusive, double hi_inclusive,
                          "], got " + num(v));
   }
   return v;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
 }
 
 void StateHasher::add_bytes(const void* data, std::size_t n) {

@@ -8,11 +8,6 @@
 namespace vcsim {
 
 namespace {
-double median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-  return v[v.size() / 2];
-}
 double segment_distance(const Vec3& a, const Vec3& b, const Vec3& p) {
   const Vec3 ab = b - a;
   const double t = std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0);

@@ -11,24 +11,9 @@
 #include "vcsim/core.h"
 #include "vcsim/haptics.h"
 
-namespace {
-std::atomic<long> g_allocations{0};
-}
+#include "counting_new.h"
 
-#ifndef VCSIM_SANITIZE
-void* operator new(std::size_t n) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(n ? n : 1)) return p;
-  throw std::bad_alloc();
-}
-// noinline: once inlined, GCC sees malloc'd memory meet operator new and warns of a mismatch.
-[[gnu::noinline]] void operator delete(void* p) noexcept {
-  std::free(p);
-}
-[[gnu::noinline]] void operator delete(void* p, std::size_t) noexcept {
-  std::free(p);
-}
-#endif
+using vcsim::test::g_allocations;
 
 namespace {
 

@@ -1,48 +1,18 @@
 // `vcsim instruments list|show`: JSON with the documented keys; a bad name or folder is one line
 // naming the field, exit status 2.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
-#include <filesystem>
-#include <fstream>
 #include <nlohmann/json.hpp>
-#include <sstream>
+
+#include "cli_runner.h"
 
 namespace {
 
-struct Result {
-  int status = -1;
-  std::string out, err;
-};
+using Result = vcsim::test::CliResult;
 
-std::string slurp(const std::filesystem::path& p) {
-  std::ifstream f(p);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
-
+// `vcsim instruments ARGS --dir <the test catalogue>`.
 Result run(const std::string& args) {
-  const auto dir = std::filesystem::temp_directory_path();
-  std::string tag = std::to_string(::getpid());
-  tag += ::testing::UnitTest::GetInstance()->current_test_info()->name();
-  const auto out = dir / (tag + "_vcsim_instr.out");
-  const auto err = dir / (tag + "_vcsim_instr.err");
-  std::string cmd = VCSIM_CLI;
-  for (const std::string& part : {std::string(" instruments "), args, std::string(" --dir "),
-                                  std::string(VCSIM_INSTRUMENTS_DATA), std::string(" >"),
-                                  out.string(), std::string(" 2>"), err.string()}) {
-    cmd += part;
-  }
-  const int raw = std::system(cmd.c_str());
-  Result r;
-  r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-  r.out = slurp(out);
-  r.err = slurp(err);
-  std::filesystem::remove(out);
-  std::filesystem::remove(err);
-  return r;
+  return vcsim::test::run_cli("instruments " + args + " --dir " + VCSIM_INSTRUMENTS_DATA);
 }
 
 TEST(InstrumentsCli, ListJson) {

@@ -1,43 +1,17 @@
 // The command line: JSON output with the documented keys, and bad input as one line naming the
 // field with exit status 2.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
 
-#include <cstdlib>
-#include <filesystem>
-#include <fstream>
+#include <algorithm>
 #include <nlohmann/json.hpp>
-#include <sstream>
+
+#include "cli_runner.h"
 
 namespace {
 
-struct Result {
-  int status = -1;
-  std::string out, err;
-};
-
-std::string slurp(const std::filesystem::path& p) {
-  std::ifstream f(p);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
-
+using Result = vcsim::test::CliResult;
 Result run(const std::string& args) {
-  const auto dir = std::filesystem::temp_directory_path();
-  const auto tag = std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-                   ::testing::UnitTest::GetInstance()->current_test_info()->name();
-  const auto out = dir / ("vcsim_cli_" + tag + ".out"), err = dir / ("vcsim_cli_" + tag + ".err");
-  const std::string cmd =
-      std::string(VCSIM_CLI) + " " + args + " >" + out.string() + " 2>" + err.string();
-  const int raw = std::system(cmd.c_str());
-  Result r;
-  r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-  r.out = slurp(out);
-  r.err = slurp(err);
-  std::filesystem::remove(out);
-  std::filesystem::remove(err);
-  return r;
+  return vcsim::test::run_cli(args);
 }
 
 void expect_bad_input(const std::string& args, const std::string& names) {
