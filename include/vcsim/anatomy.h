@@ -1,0 +1,365 @@
+// vcsim anatomy: the patient's vessel tree (centrelines and radii), the lumen surface built from
+// it, lesions, cardiac and respiratory motion, and closed body meshes for imaging.
+// SI units inside (m, s, rad). Patient coordinates are DICOM LPS: +x toward the patient's left,
+// +y posterior, +z toward the head, so C-arm angles mean what clinicians expect.
+// Data files carry units in their key names (points_mm, radius_mm) and are converted at load.
+#pragma once
+
+#include "vcsim/collision.h"
+
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace vcsim {
+
+// ---------------------------------------------------------------------------------------------
+// Vessel tree
+
+// What a segment is; decides mesh resolution (coronaries on a fine grid, 0.1 mm radius error),
+// and which body region moves with the heart.
+enum class VesselKind : std::uint8_t { kAorta, kArtery, kCoronary, kSinus };
+std::string_view to_string(VesselKind kind);
+
+struct VesselSegment {
+  std::string name;
+  VesselKind kind = VesselKind::kArtery;
+  int parent = -1;            // index of the parent segment, -1 for the root
+  std::vector<Vec3> points;   // (np) centreline in flow direction (proximal first), m, LPS
+  std::vector<double> radii;  // (np) lumen radius at each point, m
+  // The distal end is a rounded dead end (an aortic sinus, the aortic valve side of the root).
+  // Otherwise a distal end not continued by a child is an open outlet.
+  bool closed_end = false;
+};
+
+// A place in the tree: `distance` m along a segment's centreline from its first point.
+struct TreeLocation {
+  int segment = -1;
+  double distance = 0.0;
+};
+
+// A stenosis. The residual lumen is a circle whose radius follows
+//   r(s) = r0(s) (1 - reduction * phi(s)),  phi = (1 - cos(2 pi (s - s0) / length)) / 2,
+// and whose centre moves by eccentricity * (r0 - r) away from the plaque side, so at
+// eccentricity 1 the residual lumen touches the healthy wall opposite the plaque.
+struct Lesion {
+  int segment = -1;
+  double distance = 0.0;            // m from the segment's ostium to the lesion's start
+  double length = 10e-3;            // m
+  double diameter_reduction = 0.5;  // fraction in [0, 0.95] at the throat
+  double eccentricity = 0.0;        // [0, 1]
+  double angle = 0.0;  // rad: plaque side around the centreline, 0 = toward the heart's outside
+};
+
+// The heart as an ellipsoid, for placing coronaries on its surface, for motion and imaging.
+struct HeartModel {
+  Vec3 centre = Vec3::Zero();              // m, LPS
+  Vec3 axis = Vec3::UnitZ();               // unit, base -> apex
+  Vec3 anterior = Vec3::UnitY();           // unit, perpendicular to axis
+  Vec3 radii = Vec3(60e-3, 45e-3, 40e-3);  // m: half-length along axis, along anterior, third
+};
+
+struct VesselTree {
+  std::string name;
+  std::vector<VesselSegment> segments;  // a parent always comes before its children
+  std::vector<Lesion> lesions;
+  TreeLocation access;      // where instruments enter (e.g. the right common femoral)
+  TreeLocation target;      // the treatment site (e.g. a coronary stenosis)
+  bool open_start = false;  // the root's first point is an open end (else a rounded dead end)
+  std::optional<HeartModel> heart;
+
+  int find(std::string_view name) const;  // index or -1
+  int num_segments() const { return static_cast<int>(segments.size()); }
+};
+
+// Cumulative arc length at each centreline point, m (front() = 0).
+std::vector<double> arc_lengths(const VesselSegment& seg);
+double segment_length(const VesselSegment& seg);
+// Centreline point, radius and unit tangent at arc length s (clamped to the segment).
+Vec3 point_at(const VesselSegment& seg, double s);
+double radius_at(const VesselSegment& seg, double s);
+Vec3 tangent_at(const VesselSegment& seg, double s);
+
+// Arc length along segment i where its centreline leaves its parent's lumen (0 for the root and
+// for a segment continuing its parent's end). Lesion distances are measured from here.
+double ostium_distance(const VesselTree& tree, int i);
+
+// Arc length along the parent where segment i's first point projects (the parent's length for
+// a continuation); 0 for the root.
+double attach_distance(const VesselTree& tree, int i);
+
+// Centreline route between two places (up to their common ancestor and down), as points about
+// `spacing` apart, m. The path an instrument follows from the access to the target.
+std::vector<Vec3> route(const VesselTree& tree, const TreeLocation& from, const TreeLocation& to,
+                        double spacing);
+
+// An open vessel end: a single boundary loop of the lumen mesh.
+struct OpenEnd {
+  int segment = -1;
+  bool at_start = false;  // the segment's first point (only the root with open_start)
+  Vec3 centre;            // m
+  Vec3 outward;           // unit, pointing out of the vessel
+  double radius = 0.0;    // m
+};
+std::vector<OpenEnd> open_ends(const VesselTree& tree);
+
+// Checks names, topology, point and radius arrays, lesions, access and target; throws InputError
+// naming `source` and the offending field.
+void validate_tree(const VesselTree& tree, const std::string& source);
+
+// JSON format (data/anatomy/*.json, docs/anatomy.md): units in key names, converted at load.
+VesselTree parse_vessel_tree(std::string_view json_text, const std::string& source);
+VesselTree load_vessel_tree(const std::string& path);
+std::string vessel_tree_to_json(const VesselTree& tree);
+void save_vessel_tree(const VesselTree& tree, const std::string& path);
+
+// The built-in patients, generated from clinical dimensions (docs/anatomy.md).
+enum class PatientVariant : std::uint8_t {
+  kRightDominant,         // the default: right-dominant coronaries, typical arch
+  kLeftDominantTortuous,  // left-dominant coronaries, an elongated tortuous arch
+};
+VesselTree default_patient(PatientVariant variant = PatientVariant::kRightDominant);
+// "default" / "right-dominant", "left-dominant"; throws InputError for other names.
+PatientVariant patient_variant_from_string(const std::string& name, const std::string& source);
+
+// The tree with each lesion's residual lumen on the centreline: points are resampled at
+// `spacing` inside lesions, radii reduced and centres shifted as the lesion mesh is.
+VesselTree stenosed_tree(const VesselTree& tree, double spacing = 0.25e-3);
+
+// Healthy radius r0, residual radius and centre offset (toward -plaque direction) of a lesion at
+// arc length s of its segment; 1 - r / r0 is the local diameter reduction.
+struct LesionProfile {
+  double factor = 1.0;  // r / r0
+  double shift = 0.0;   // m, centre offset, = eccentricity (r0 - r)
+};
+LesionProfile lesion_profile(const Lesion& lesion, double ostium, double r0, double s);
+
+// ---------------------------------------------------------------------------------------------
+// Lumen surface
+
+struct LumenSettings {
+  double coarse_voxel = 0.6e-3;     // m, lattice spacing for aorta and arteries
+  double fine_voxel = 0.2e-3;       // m, lattice spacing for coronaries
+  double coronary_error = 0.06e-3;  // m, simplification error bound in coronaries
+  double aorta_error = 0.25e-3;     // m, in the aorta (arteries: min of this and 4 % of r)
+  double lesion_error = 0.02e-3;    // m, around lesions (the balloon morphs this region)
+  bool use_cache = true;
+  std::string cache_dir;  // empty: $XDG_CACHE_HOME/vcsim/anatomy or ~/.cache/vcsim/anatomy
+};
+
+struct Lumen {
+  TriangleMesh mesh;                   // the lumen wall, normals into the lumen (lesions applied)
+  std::vector<Vec3> healthy_vertices;  // (nv) the same vertices without lesions, m
+  std::vector<int> vertex_segment;     // (nv) segment whose swept sphere holds the vertex
+  std::vector<double> vertex_arc;      // (nv) arc length of the vertex along that segment, m
+  std::vector<int> triangle_segment;   // (nt) segment of the triangle's first vertex
+  std::vector<OpenEnd> ends;           // the open vessel ends
+  MeshReport report;                   // check_and_repair of the final mesh
+  double build_seconds = 0.0;
+  std::string cache_status;  // "off", "hit", "miss", or "rebuilt: <why the cache was refused>"
+};
+
+// Builds the lumen: the union of spheres swept along every centreline, meshed by sparse marching
+// tetrahedra (aorta and coronaries on separate grids joined by a strip), projected onto the exact
+// surface, cut flat at open ends, simplified by edge collapses within the error bounds of the
+// exact surface, then lesions applied (docs/anatomy.md). Uses two threads. Cached on disk by a
+// hash of the tree and settings; a stale or corrupt cache file is never used (cache_status says
+// why it was rebuilt). Throws InputError for an invalid tree.
+Lumen build_lumen(const VesselTree& tree, const LumenSettings& settings = {});
+
+// Lumen radius of a segment measured on the mesh at arc length s: distances from the centreline
+// point to the wall along `rays` rays in the normal plane; their mean, min and max.
+struct RadiusSample {
+  double mean = 0.0, min = 0.0, max = 0.0;  // m
+};
+RadiusSample measure_radius(const TriangleMesh& mesh, const AabbTree& tree,
+                            const VesselSegment& seg, double s, int rays = 16);
+
+// Mesh quality in the terms of the issue: closed except at the designated open ends (each one
+// clean boundary loop), manifold edges and vertices.
+struct LumenCheck {
+  int triangles = 0, vertices = 0;
+  int boundary_loops = 0;
+  int open_ends = 0;
+  int unmatched_loops = 0;  // loops not at a designated open end
+  int non_manifold_edges = 0;
+  int non_manifold_vertices = 0;  // vertices whose triangles do not form one fan
+  int components = 0;
+  bool watertight = false;  // every loop is one designated open end and every end has one loop
+  bool manifold = false;
+};
+LumenCheck check_lumen(const TriangleMesh& mesh, const std::vector<OpenEnd>& ends);
+
+// A patient mesh (STL, OBJ, PLY in `unit_scale` m per file unit) with its centrelines (our JSON
+// or a Vascular Model Repository .pth file): the mesh is checked and repaired, vertices are
+// assigned to the nearest segment. Radii missing from a .pth file are measured on the mesh.
+Lumen import_lumen(const std::string& mesh_path, const VesselTree& centrelines,
+                   double unit_scale = 1e-3);
+// Reads the paths of a SimVascular .pth file (XML, coordinates in `unit_scale` m per unit) as
+// segments without parents; radii are left empty for measure_radii_on_mesh.
+VesselTree load_pth_paths(const std::string& path, double unit_scale = 1e-3);
+// Fills empty radii from the mesh (closest-wall distance), links each segment to the segment
+// whose lumen holds its first point, and validates the tree.
+void measure_radii_on_mesh(VesselTree& tree, const TriangleMesh& mesh, const std::string& source);
+
+// ---------------------------------------------------------------------------------------------
+// Cardiac and respiratory motion
+
+struct MotionSettings {
+  double heart_rate_bpm = 70.0;
+  // End-diastole -> end-systole displacement of the heart: a swing along the long axis, radial
+  // contraction toward the axis and longitudinal shortening toward the centre (fractions of the
+  // distance), and a twist growing toward the apex (docs/anatomy.md: coronaries move 3-7 mm,
+  // more distally; the vessel calibre shrinks by about the contraction fractions).
+  double translation = 0.0;  // m, along the base -> apex axis
+  double radial_contraction = 0.085;
+  double longitudinal_contraction = 0.075;
+  double twist = 0.05;  // rad at the apex, end-systole
+  bool respiration = false;
+  double respiratory_rate_per_min = 15.0;
+  double respiratory_shift = 4.9e-3;    // m, caudal at full inspiration (clinical.md)
+  double respiratory_rotation = 0.026;  // rad (1.5 deg) about the left-right axis
+
+  void validate(const std::string& source) const;
+};
+
+// Smooth displacement field u(X, t) = w_h(X) c(t) U_c(X) + w_r(X) r(t) U_r(X): c(t) in [0, 1] is
+// the cardiac waveform (0 at end-diastole, 1 at end-systole, rest plateaus at end-systole and in
+// diastasis), r(t) in [0, 1] the respiratory one (0 at end-expiration); w_h is 1 on the heart
+// away from the aortic root and fades to 0 at the root and away from the heart, so proximal
+// coronaries move less than distal ones and the aorta stays still.
+class CardiacMotion {
+ public:
+  CardiacMotion() = default;
+  // Needs tree.heart (InputError otherwise); the root's first point is the aortic valve.
+  CardiacMotion(const VesselTree& tree, const MotionSettings& settings);
+
+  double cardiac_waveform(double t) const;      // c(t), t in s
+  double respiratory_waveform(double t) const;  // r(t)
+  double period() const { return 60.0 / settings_.heart_rate_bpm; }
+
+  // Per-point amplitudes: u(X, t) = a_cardiac c(t) + a_resp r(t).
+  void amplitudes(const Vec3& X, Vec3& a_cardiac, Vec3& a_resp) const;
+  Vec3 displacement(const Vec3& X, double t) const;
+
+  // The tree's centrelines moved to time t (the same field as the mesh vertices).
+  VesselTree moved_tree(const VesselTree& rest, double t) const;
+
+  const MotionSettings& settings() const { return settings_; }
+  const HeartModel& heart() const { return heart_; }
+
+ private:
+  HeartModel heart_;
+  Vec3 valve_ = Vec3::Zero();
+  MotionSettings settings_;
+};
+
+// The lumen split into patches, each a small mesh with its own AABB tree, so that a step moves
+// and refits only the patches instruments can touch. Static patches (no motion) never update.
+struct BeatingLumenSettings {
+  // Triangles per patch at most: small patches are partial rings whose boxes a node in the middle
+  // of the lumen does not overlap, so only the wall near the instruments moves each step.
+  int patch_triangles = 16;
+  AabbTreeSettings tree;
+};
+
+struct BeatingLumenProfile {
+  int patches_updated = 0;
+  int triangles_updated = 0;
+  double us = 0.0;  // wall time of the update
+};
+
+class BeatingLumen {
+ public:
+  BeatingLumen() = default;
+  BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion,
+               const BeatingLumenSettings& settings = {});
+
+  // Moves to time t (s) the moving patches that any sphere (centres, radii; radii may hold one
+  // value) may touch at t, recomputes their normals and refits their trees. A patch is touched
+  // if the sphere overlaps its box as last updated, grown by the most any of its vertices can
+  // have moved since (amplitude times the change of the waveforms). Other patches keep their
+  // last pose until touched. Allocates nothing.
+  BeatingLumenProfile update(double t, std::span<const Vec3> centres,
+                             std::span<const double> radii);
+  // Moves every patch (rendering, tests); the same as update() with spheres everywhere.
+  BeatingLumenProfile update_all(double t);
+
+  // Contact of each sphere with the wall as last updated: the closest contact over the patches
+  // whose boxes the sphere overlaps (triangle in the rest mesh's numbering; num_touching summed).
+  // Allocates nothing; not thread-safe (shared scratch).
+  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                     std::span<SphereContact> out, const SphereQuerySettings& settings = {}) const;
+
+  // The whole wall at the last update of each patch: `out` holds a copy of the rest mesh, whose
+  // vertices and normals are overwritten.
+  void gather(TriangleMesh& out) const;
+
+  int num_patches() const { return static_cast<int>(patches_.size()); }  // moving patches
+  int num_static_triangles() const { return static_.mesh.num_triangles(); }
+  int num_triangles() const { return num_triangles_; }
+
+ private:
+  struct Patch {
+    TriangleMesh mesh;
+    AabbTree tree;
+    std::vector<int> global_vertex;             // local vertex -> rest mesh vertex
+    std::vector<int> global_triangle;           // local triangle -> rest mesh triangle
+    std::vector<Vec3> rest, a_cardiac, a_resp;  // (nv local)
+    Aabb reach;  // rest box grown by the largest displacement: where it can ever be
+    Aabb box;    // box at the last update (fat margin included)
+    // Vertices move linearly in the waveforms, so the box at (c, r) lies within
+    // rest_box + c * box(a_cardiac) + r * box(a_resp) (Minkowski sums of boxes).
+    Aabb rest_box, amp_c_box, amp_r_box;
+    bool moving = false;
+    double time = -1.0;  // time of the last update
+  };
+  // Broad phase: a uniform grid whose cells list the patches whose reach boxes overlap them.
+  struct PatchGrid {
+    Vec3 origin = Vec3::Zero();
+    double cell = 0.01;
+    int nx = 0, ny = 0, nz = 0;
+    std::vector<int> start, list;
+  };
+  template <typename BoxOf>
+  void build_grid(PatchGrid& g, bool moving_only, BoxOf&& box_of);
+  Aabb box_at(const Patch& p, double c, double r) const;
+  void move_patch(Patch& p, double c, double r, double t);
+  // Calls f(patch index) once for each patch of the grid whose reach box overlaps the sphere.
+  template <typename F>
+  void for_each_candidate(const PatchGrid& g, const Vec3& centre, double radius, F&& f) const;
+
+  Patch static_;                // every triangle that never moves, one tree
+  std::vector<Patch> patches_;  // the moving triangles
+  CardiacMotion motion_;
+  std::size_t last_grid_ = 0;
+  double last_time_ = -1.0;
+  int num_triangles_ = 0;
+  int num_vertices_ = 0;
+  // Moving patches binned by their box at cardiac phases c = k / (n - 1), each grown to cover
+  // half a bin either side and any respiration, so a node is looked up in the grid of its phase.
+  std::vector<PatchGrid> phase_grids_;
+  mutable std::vector<std::uint32_t> seen_;  // per-patch stamps (scratch, no allocation)
+  mutable std::uint32_t stamp_ = 0;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Body context for imaging
+
+enum class Material : std::uint8_t { kSoftTissue, kLung, kHeart, kBone, kBlood };
+std::string_view to_string(Material m);
+
+struct BodyPart {
+  std::string name;  // torso, lung_left, lung_right, heart, spine, ribs, sternum, diaphragm
+  Material material = Material::kSoftTissue;
+  TriangleMesh mesh;  // closed, normals outward (away from the part's interior), m, LPS
+};
+
+// Closed meshes registered to the tree: the heart is the tree's HeartModel, the spine sits behind
+// the descending aorta, the diaphragm dome under the heart. Needs tree.heart.
+std::vector<BodyPart> build_body_context(const VesselTree& tree);
+
+}  // namespace vcsim
