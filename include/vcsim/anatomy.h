@@ -280,9 +280,9 @@ class BeatingLumen {
 
   // Moves to time t (s) the moving patches that any sphere (centres, radii; radii may hold one
   // value) may touch at t, recomputes their normals and refits their trees. A patch is touched
-  // if the sphere overlaps its box as last updated, grown by the most any of its vertices can
-  // have moved since (amplitude times the change of the waveforms). Other patches keep their
-  // last pose until touched. Allocates nothing.
+  // if the sphere overlaps a box that holds the patch at t (its rest box plus the waveforms times
+  // the boxes of its vertices' amplitudes). Other patches keep their last pose until touched. Radii
+  // should include any escape distance the queries will use. Allocates nothing.
   BeatingLumenProfile update(double t, std::span<const Vec3> centres,
                              std::span<const double> radii);
   // Moves every patch (rendering, tests); the same as update() with spheres everywhere.

@@ -15,7 +15,13 @@ using test::patient;
 using test::patient_lumen;
 constexpr double mm = 1e-3;
 
-class AnatomyLumenTest : public ::testing::TestWithParam<PatientVariant> {};
+class AnatomyLumenTest : public ::testing::TestWithParam<PatientVariant> {
+ protected:
+  void SetUp() override {
+    if (GetParam() != PatientVariant::kRightDominant && test::skip_second_lumen())
+      GTEST_SKIP() << "second patient's lumen checked in release builds only";
+  }
+};
 
 TEST_P(AnatomyLumenTest, ClosedExceptAtOpenEndsAndManifold) {
   const VesselTree& t = patient(GetParam());
