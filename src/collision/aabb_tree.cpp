@@ -339,7 +339,11 @@ SphereContact AabbTree::query_sphere(const TriangleMesh& mesh, const Vec3& centr
   out.point = acc.point;
   out.triangle = acc.triangle;
   out.num_touching = acc.touching;
-  out.centre_outside = acc.pseudo_normal.dot(centre - acc.point) < 0.0;
+  // Walls equally near on opposite sides (a centre on a tube's axis) cancel each other's
+  // pseudo-normals: such a centre is between walls, hence inside. A centre behind a wall is
+  // nearest to that wall alone, whose pseudo-normal does not cancel.
+  out.centre_outside =
+      acc.pseudo_normal.norm() > 1e-6 && acc.pseudo_normal.dot(centre - acc.point) < 0.0;
   if (!out.centre_outside && acc.d_min >= radius) return out;
   out.touching = true;
   out.depth = out.centre_outside ? radius + acc.d_min : radius - acc.d_min;

@@ -201,6 +201,28 @@ TEST(AabbTree, RefitAfterDeformationMatchesRebuild) {
   }
 }
 
+// A centre exactly on a tube's axis is equally near walls on every side; their pseudo-normals
+// cancel, and the centre must still count as inside (it once came out "outside", which would
+// have pushed an instrument node lying on the axis through the wall).
+TEST(AabbTree, CentreExactlyOnATubeAxisIsInside) {
+  TubeSpec spec;
+  spec.centreline = {Vec3::Zero(), Vec3(0, 0, 0.02)};
+  spec.radius = 2e-3;
+  spec.sides = 24;
+  spec.rings = 11;
+  TriangleMesh mesh = make_tube(spec);
+  check_and_repair(mesh, "tube");
+  AabbTree tree;
+  tree.build(mesh);
+  for (double z : {0.006, 0.01, 0.0133}) {
+    // Radius beyond the lumen radius: touching the wall all around, from inside.
+    const SphereContact c = tree.query_sphere(mesh, Vec3(0, 0, z), 2.5e-3);
+    ASSERT_TRUE(c.touching) << z;
+    EXPECT_FALSE(c.centre_outside) << z;
+    EXPECT_LT(c.depth, 2.5e-3 - 0.9 * 2e-3) << "depth r - d, not r + d";
+  }
+}
+
 TEST(AabbTree, EmptyTreeAndSettings) {
   AabbTree tree;
   TriangleMesh m;
