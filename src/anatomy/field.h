@@ -87,6 +87,10 @@ double segment_field(const VesselSegment& seg, const Vec3& p);
 // Direction of a lesion's plaque at arc length s (docs/anatomy.md: angle 0 points away from the
 // heart centre, or anterior without a heart model).
 Vec3 plaque_direction(const VesselTree& tree, const Lesion& lesion, double s);
+
+// Completes a lumen whose vertex_segment and vertex_arc are set: triangle ownership, the healthy
+// vertex copy, lesions applied (same topology), normals. Shared by the built and imported lumen.
+void finish_lumen(const VesselTree& tree, Lumen& lumen);
 // Segment i starts at its parent's last point (a continuation, not a side branch).
 bool continues_parent(const VesselTree& tree, int i);
 

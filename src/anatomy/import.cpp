@@ -172,24 +172,7 @@ Lumen import_lumen(const std::string& mesh_path, const VesselTree& tree, double 
       }
     }
   }
-  lu.triangle_segment.resize(lu.mesh.triangles.size());
-  for (std::size_t t = 0; t < lu.mesh.triangles.size(); ++t)
-    lu.triangle_segment[t] = lu.vertex_segment[lu.mesh.triangles[t][0]];
-  lu.healthy_vertices = lu.mesh.vertices;
-  for (const Lesion& les : tree.lesions) {
-    const VesselSegment& seg = tree.segments[les.segment];
-    const double ost = ostium_distance(tree, les.segment);
-    for (int v = 0; v < nv; ++v) {
-      if (lu.vertex_segment[v] != les.segment) continue;
-      const double s = lu.vertex_arc[v];
-      const LesionProfile p = lesion_profile(les, ost, radius_at(seg, s), s);
-      if (p.factor == 1.0) continue;
-      const Vec3 c = point_at(seg, s);
-      lu.mesh.vertices[v] = c - p.shift * internal::plaque_direction(tree, les, s) +
-                            p.factor * (lu.healthy_vertices[v] - c);
-    }
-  }
-  lu.mesh.recompute_normals();
+  internal::finish_lumen(tree, lu);
   lu.build_seconds = (now_us() - t0) * 1e-6;
   return lu;
 }

@@ -447,30 +447,37 @@ Lumen build_lumen(const VesselTree& tree, const LumenSettings& st) {
     lu.vertex_segment[v] = best->segment;
     lu.vertex_arc[v] = best->s0 + t * (best->b - best->a).norm();
   }
+  internal::finish_lumen(tree, lu);
+  lu.build_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return lu;
+}
+
+namespace internal {
+
+void finish_lumen(const VesselTree& tree, Lumen& lu) {
   lu.triangle_segment.resize(lu.mesh.triangles.size());
   for (std::size_t t = 0; t < lu.mesh.triangles.size(); ++t)
     lu.triangle_segment[t] = lu.vertex_segment[lu.mesh.triangles[t][0]];
-
   // Lesions move vertices toward the residual lumen; topology is unchanged.
   lu.healthy_vertices = lu.mesh.vertices;
+  const int nv = lu.mesh.num_vertices();
   for (const Lesion& les : tree.lesions) {
     const VesselSegment& seg = tree.segments[les.segment];
     const double ost = ostium_distance(tree, les.segment);
     for (int v = 0; v < nv; ++v) {
       if (lu.vertex_segment[v] != les.segment) continue;
       const double s = lu.vertex_arc[v];
-      const double r0 = radius_at(seg, s);
-      const LesionProfile p = lesion_profile(les, ost, r0, s);
+      const LesionProfile p = lesion_profile(les, ost, radius_at(seg, s), s);
       if (p.factor == 1.0) continue;
       const Vec3 c = point_at(seg, s);
       const Vec3 e = lu.healthy_vertices[v] - c;
-      lu.mesh.vertices[v] = c - p.shift * internal::plaque_direction(tree, les, s) + p.factor * e;
+      lu.mesh.vertices[v] = c - p.shift * plaque_direction(tree, les, s) + p.factor * e;
     }
   }
   lu.mesh.recompute_normals();
-  lu.build_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return lu;
 }
+
+}  // namespace internal
 
 // ---------------------------------------------------------------------------------------------
 // Checks and measurements
