@@ -1,29 +1,18 @@
 // `vcsim anatomy` and `vcsim bench anatomy`: JSON with the documented keys, files written, and bad
 // input as one line naming the file with exit status 2.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
 
-#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
-#include <sstream>
+
+#include "cli_runner.h"
 
 #include "vcsim/mesh_io.h"
 
 namespace {
 
-struct Result {
-  int status = -1;
-  std::string out, err;
-};
-
-std::string slurp(const std::filesystem::path& p) {
-  std::ifstream f(p);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
+using Result = vcsim::test::CliResult;
 
 std::filesystem::path temp(const std::string& name) {
   return std::filesystem::temp_directory_path() /
@@ -33,17 +22,8 @@ std::filesystem::path temp(const std::string& name) {
 
 // Runs the CLI with the test cache (the built-in patient's lumen is built once for all tests).
 Result run(const std::string& args) {
-  const auto out = temp(".out"), err = temp(".err");
-  const std::string cmd = std::string("XDG_CACHE_HOME=") + VCSIM_ANATOMY_TEST_CACHE + "/xdg " +
-                          VCSIM_CLI + " " + args + " >" + out.string() + " 2>" + err.string();
-  const int raw = std::system(cmd.c_str());
-  Result r;
-  r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-  r.out = slurp(out);
-  r.err = slurp(err);
-  std::filesystem::remove(out);
-  std::filesystem::remove(err);
-  return r;
+  return vcsim::test::run_cli(args,
+                              std::string("XDG_CACHE_HOME=") + VCSIM_ANATOMY_TEST_CACHE + "/xdg ");
 }
 
 TEST(AnatomyCli, InfoJsonDescribesTheDefaultPatient) {
@@ -83,7 +63,7 @@ TEST(AnatomyCli, InfoOfAFileAndExport) {
   EXPECT_EQ(a.num_triangles(), j["triangles"].get<int>());
   EXPECT_EQ(b.num_triangles(), j["triangles"].get<int>());
   ASSERT_EQ(run("anatomy export --out " + js.string()).status, 0);
-  EXPECT_NE(slurp(js).find("\"vcsim-anatomy\""), std::string::npos);
+  EXPECT_NE(vcsim::test::slurp(js).find("\"vcsim-anatomy\""), std::string::npos);
   for (const auto& p : {stl, obj, js}) std::filesystem::remove(p);
 }
 

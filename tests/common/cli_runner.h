@@ -25,14 +25,16 @@ inline std::string slurp(const std::filesystem::path& p) {
   return ss.str();
 }
 
-// `args` follow the program name, e.g. "validate torsion --json".
-inline CliResult run_cli(const std::string& args) {
+// `args` follow the program name, e.g. "validate torsion --json"; `env` is an optional
+// "NAME=value " prefix for the shell.
+inline CliResult run_cli(const std::string& args, const std::string& env = "") {
   const auto dir = std::filesystem::temp_directory_path();
   std::string tag = "vcsim_cli_" + std::to_string(::getpid()) + "_";
   tag += ::testing::UnitTest::GetInstance()->current_test_info()->name();
   const auto out = dir / (tag + ".out");
   const auto err = dir / (tag + ".err");
-  std::string cmd = VCSIM_CLI;
+  std::string cmd = env;
+  cmd += VCSIM_CLI;
   cmd += " ";
   cmd += args;
   cmd += " >" + out.string() + " 2>" + err.string();
