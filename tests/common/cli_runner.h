@@ -29,7 +29,10 @@ inline std::string slurp(const std::filesystem::path& p) {
 // "NAME=value " prefix for the shell.
 inline CliResult run_cli(const std::string& args, const std::string& env = "") {
   const auto dir = std::filesystem::temp_directory_path();
-  std::string tag = "vcsim_cli_" + std::to_string(::getpid()) + "_";
+  // Built with += : GCC 12 warns falsely (-Wrestrict) on "literal" + std::to_string(...).
+  std::string tag = "vcsim_cli_";
+  tag += std::to_string(::getpid());
+  tag += "_";
   tag += ::testing::UnitTest::GetInstance()->current_test_info()->name();
   const auto out = dir / (tag + ".out");
   const auto err = dir / (tag + ".err");
@@ -37,7 +40,10 @@ inline CliResult run_cli(const std::string& args, const std::string& env = "") {
   cmd += VCSIM_CLI;
   cmd += " ";
   cmd += args;
-  cmd += " >" + out.string() + " 2>" + err.string();
+  cmd += " >";
+  cmd += out.string();
+  cmd += " 2>";
+  cmd += err.string();
   const int raw = std::system(cmd.c_str());
   CliResult r;
   r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
