@@ -77,8 +77,12 @@ bool distance_global(const RodModel& md, double dt, std::span<const Vec3> xs, st
   return true;
 }
 
-void distance_local_gs(const RodModel& md, double dt, std::span<const Vec3> x, std::span<Vec3> v,
-                       RodWorkspace& ws) {
+namespace {
+// One local sweep: each constraint projected on its own from the current velocities `v`, its
+// correction written to `out`. out == v is Gauss-Seidel (seen by the next constraint at once);
+// out == a separate accumulator is Jacobi (all constraints see the same velocities).
+void local_sweep(const RodModel& md, double dt, std::span<const Vec3> x, std::span<const Vec3> v,
+                 Vec3* out, RodWorkspace& ws) {
   const double* w = ws.inv_mass.data();
   for (int j = 0; j < md.m; ++j) {
     const double ws_sum = w[j] + w[j + 1];
@@ -86,28 +90,23 @@ void distance_local_gs(const RodModel& md, double dt, std::span<const Vec3> x, s
     Vec3& n = ws.dir[j];
     const double c = constraint_at(x[j], v[j], x[j + 1], v[j + 1], dt, md.rest_length[j], n);
     const double lambda = -c / (dt * ws_sum);
-    v[j] -= w[j] * lambda * n;
-    v[j + 1] += w[j + 1] * lambda * n;
+    out[j] -= w[j] * lambda * n;
+    out[j + 1] += w[j + 1] * lambda * n;
     ws.node_impulse[j] -= lambda * n;
     ws.node_impulse[j + 1] += lambda * n;
   }
 }
+}  // namespace
+
+void distance_local_gs(const RodModel& md, double dt, std::span<const Vec3> x, std::span<Vec3> v,
+                       RodWorkspace& ws) {
+  local_sweep(md, dt, x, v, v.data(), ws);
+}
 
 void distance_local_jacobi(const RodModel& md, double dt, std::span<const Vec3> x,
                            std::span<Vec3> v, RodWorkspace& ws) {
-  const double* w = ws.inv_mass.data();
   for (int i = 0; i < md.n; ++i) ws.dv[i].setZero();
-  for (int j = 0; j < md.m; ++j) {
-    const double ws_sum = w[j] + w[j + 1];
-    if (ws_sum == 0.0) continue;
-    Vec3& n = ws.dir[j];
-    const double c = constraint_at(x[j], v[j], x[j + 1], v[j + 1], dt, md.rest_length[j], n);
-    const double lambda = -c / (dt * ws_sum);
-    ws.dv[j] -= w[j] * lambda * n;
-    ws.dv[j + 1] += w[j + 1] * lambda * n;
-    ws.node_impulse[j] -= lambda * n;
-    ws.node_impulse[j + 1] += lambda * n;
-  }
+  local_sweep(md, dt, x, v, ws.dv.data(), ws);
   // Each node averages the corrections of its (one or two) constraints: plain summation
   // overshoots by up to a factor of two and diverges at one iteration (cf. Mueller et al.'s
   // position-based dynamics, constraint averaging).
