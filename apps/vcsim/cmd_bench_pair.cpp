@@ -23,14 +23,14 @@ int run(const Args& a) {
     throw InputError("bench pair", "--steps", "expected 10 .. 1000000");
   }
   PairScene sc = make_pair_scene(a.opt);
-  const Lumen lumen = sc.lumen();
+  StaticWall wall = sc.wall();
   // Both advance at 20 mm/s, the wire leading, turning slowly.
   std::vector<DriveCommand> cmds(2, DriveCommand{DriveCommand::Mode::kVelocity, 0.02, 0.5});
   std::vector<double> total, forces, integ, coll, dist, cont, cons;
   StepProfile p;
   int max_contacts = 0;
   for (int k = 0; k < a.steps; ++k) {
-    step_instruments(sc.instruments, sc.couplings, lumen, sc.settings, cmds, &p);
+    step_instruments(sc.instruments, sc.couplings, &wall, sc.settings, cmds, &p);
     if (k < a.steps / 10) continue;  // warm-up
     total.push_back(p.total);
     forces.push_back(p.forces);

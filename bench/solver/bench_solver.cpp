@@ -12,7 +12,7 @@ void BM_CompressionStep(benchmark::State& state) {
   CompressionOptions o;
   CompressionScene sc =
       make_compression_scene(o, DistanceMethod::kGlobal, static_cast<int>(state.range(0)));
-  const Lumen lumen = sc.lumen();
+  StaticWall wall = sc.wall();
   DriveCommand cmd{DriveCommand::Mode::kPosition, o.end_depth, 0.0};
   // Push to the end depth first: the benchmark times the loaded rod against the bend.
   const int push_steps =
@@ -20,11 +20,11 @@ void BM_CompressionStep(benchmark::State& state) {
   for (int k = 0; k < push_steps; ++k) {
     cmd.translation =
         std::min(o.end_depth, o.start_depth + o.push_speed * (k + 1) * sc.settings.rod.dt);
-    instrument_step(sc.inst, lumen, sc.settings, cmd);
+    instrument_step(sc.inst, &wall, sc.settings, cmd);
   }
   StepProfile prof;
   for (auto _ : state) {
-    instrument_step(sc.inst, lumen, sc.settings, cmd, &prof);
+    instrument_step(sc.inst, &wall, sc.settings, cmd, &prof);
     benchmark::DoNotOptimize(sc.inst.state.x.data());
   }
   state.counters["contacts"] = prof.num_contacts;

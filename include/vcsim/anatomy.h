@@ -239,11 +239,14 @@ class CardiacMotion {
 
   double cardiac_waveform(double t) const;      // c(t), t in s
   double respiratory_waveform(double t) const;  // r(t)
+  double cardiac_rate(double t) const;          // dc/dt, 1/s
+  double respiratory_rate(double t) const;      // dr/dt, 1/s
   double period() const { return 60.0 / settings_.heart_rate_bpm; }
 
   // Per-point amplitudes: u(X, t) = a_cardiac c(t) + a_resp r(t).
   void amplitudes(const Vec3& X, Vec3& a_cardiac, Vec3& a_resp) const;
   Vec3 displacement(const Vec3& X, double t) const;
+  Vec3 velocity(const Vec3& X, double t) const;  // du/dt at the rest point X, m/s
 
   // The tree's centrelines moved to time t (the same field as the mesh vertices).
   VesselTree moved_tree(const VesselTree& rest, double t) const;
@@ -299,6 +302,10 @@ class BeatingLumen {
   void gather(TriangleMesh& out) const;
 
   int num_patches() const { return static_cast<int>(patches_.size()); }  // moving patches
+  const CardiacMotion& motion() const { return motion_; }
+  // Largest displacement amplitudes over the moving vertices (m): |a_cardiac|, |a_resp|.
+  double max_cardiac_amplitude() const { return max_amp_c_; }
+  double max_respiratory_amplitude() const { return max_amp_r_; }
   int num_static_triangles() const { return static_.mesh.num_triangles(); }
   int num_triangles() const { return num_triangles_; }
 
@@ -339,6 +346,7 @@ class BeatingLumen {
   double last_time_ = -1.0;
   int num_triangles_ = 0;
   int num_vertices_ = 0;
+  double max_amp_c_ = 0.0, max_amp_r_ = 0.0;
   // Moving patches binned by their box at cardiac phases c = k / (n - 1), each grown to cover
   // half a bin either side and any respiration, so a node is looked up in the grid of its phase.
   std::vector<PatchGrid> phase_grids_;

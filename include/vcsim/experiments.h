@@ -55,7 +55,7 @@ struct CompressionScene {
   Instrument inst;
   SolverSettings settings;
   double mass_scale = 1.0;
-  Lumen lumen() const { return Lumen{&mesh, &tree, 0.0}; }
+  StaticWall wall() const { return StaticWall(mesh, tree); }
 };
 CompressionScene make_compression_scene(const CompressionOptions& opt, DistanceMethod method,
                                         int iterations);
@@ -94,7 +94,7 @@ struct PairScene {
   std::vector<Instrument> instruments;  // [0] wire, [1] catheter
   std::vector<Coupling> couplings;      // wire in catheter
   SolverSettings settings;
-  Lumen lumen() const { return Lumen{&mesh, &tree, 0.0}; }
+  StaticWall wall() const { return StaticWall(mesh, tree); }
 };
 PairScene make_pair_scene(const PairOptions& opt);
 

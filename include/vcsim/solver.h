@@ -12,13 +12,33 @@
 
 namespace vcsim {
 
-// The lumen an instrument moves in (owned elsewhere; refit the tree when the wall moves).
-struct Lumen {
-  const TriangleMesh* mesh = nullptr;
-  const AabbTree* tree = nullptr;
-  // Bound on the wall's speed (m/s), 0 for a static vessel. Lets the contact detection skip
-  // nodes that cannot have reached the wall since their last query.
-  double wall_speed_bound = 0.0;
+// The vessel wall instruments collide with. The solver asks it once per step and instrument for
+// the contacts of spheres (nodes); a moving wall (anatomy's beating lumen, BeatingWall) first
+// brings the part of itself those spheres can reach to the current time, so the interface is
+// not const. Owned by the caller; one wall serves every instrument of a step.
+class VesselWall {
+ public:
+  virtual ~VesselWall() = default;
+  // Contact of each sphere with the wall (see AabbTree::query_spheres). Allocates nothing.
+  virtual void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                             std::span<SphereContact> out) = 0;
+  // Velocity of the wall (m/s) at a contact the last query returned; zero for a static wall.
+  virtual Vec3 velocity(const SphereContact& hit) const;
+  // Bound on the wall's speed anywhere (m/s), 0 for a static wall. Lets the contact detection
+  // skip nodes that cannot have reached the wall since their last query.
+  virtual double speed_bound() const { return 0.0; }
+};
+
+// A wall that does not move: a lumen mesh and its AABB tree (owned elsewhere, must outlive it).
+class StaticWall final : public VesselWall {
+ public:
+  StaticWall(const TriangleMesh& mesh, const AabbTree& tree) : mesh_(&mesh), tree_(&tree) {}
+  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                     std::span<SphereContact> out) override;
+
+ private:
+  const TriangleMesh* mesh_;
+  const AabbTree* tree_;
 };
 
 // Coulomb friction between an instrument and the vessel wall.
@@ -58,10 +78,11 @@ struct DriveState {
 // One contact of a node with the wall, solved in the block iterations.
 struct NodeContact {
   int node = 0;
-  Vec3 normal = Vec3::Zero();    // into the lumen
-  double depth = 0.0;            // > 0 penetration, < 0 speculative gap (m)
-  double lambda_n = 0.0;         // accumulated normal impulse (N s)
-  Vec3 lambda_t = Vec3::Zero();  // accumulated friction impulse (N s)
+  Vec3 normal = Vec3::Zero();         // into the lumen
+  double depth = 0.0;                 // > 0 penetration, < 0 speculative gap (m)
+  double lambda_n = 0.0;              // accumulated normal impulse (N s)
+  Vec3 lambda_t = Vec3::Zero();       // accumulated friction impulse (N s)
+  Vec3 wall_velocity = Vec3::Zero();  // of the wall at the contact (m/s)
 };
 
 struct Instrument {
@@ -107,9 +128,9 @@ struct StepProfile {
   int num_queries = 0;
 };
 
-// One step of an instrument in a lumen (lumen.mesh may be null: no collisions). No heap
-// allocation once warm.
-void instrument_step(Instrument& inst, const Lumen& lumen, const SolverSettings& settings,
+// One step of an instrument inside a vessel wall (nullptr: no collisions). No heap allocation
+// once warm.
+void instrument_step(Instrument& inst, VesselWall* wall, const SolverSettings& settings,
                      const DriveCommand& command, StepProfile* profile = nullptr);
 
 // One wire node held inside the outer instrument's lumen (concentric constraint).
@@ -139,7 +160,7 @@ struct Coupling {
 // One step of several instruments in one lumen with their couplings (commands[i] drives
 // instruments[i]). profile, if given, receives the sum over instruments.
 void step_instruments(std::span<Instrument> instruments, std::span<Coupling> couplings,
-                      const Lumen& lumen, const SolverSettings& settings,
+                      VesselWall* wall, const SolverSettings& settings,
                       std::span<const DriveCommand> commands, StepProfile* profile = nullptr);
 
 // Diagnostics: the centreline's arc length inside the body and its rest length.

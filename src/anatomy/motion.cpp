@@ -62,6 +62,29 @@ double CardiacMotion::cardiac_waveform(double t) const {
   return 0.0;
 }
 
+double CardiacMotion::cardiac_rate(double t) const {
+  double ph = t / period();
+  ph -= std::floor(ph);
+  for (std::size_t k = 0; k + 1 < std::size(kKnots); ++k) {
+    if (ph <= kKnots[k + 1][0]) {
+      const double h = kKnots[k + 1][0] - kKnots[k][0], x = (ph - kKnots[k][0]) / h;
+      const double x2 = x * x;
+      // d/dx of the Hermite basis, then dx/dt = 1 / (h period).
+      const double dv = (6 * x2 - 6 * x) * kKnots[k][1] + (3 * x2 - 4 * x + 1) * h * kKnots[k][2] +
+                        (-6 * x2 + 6 * x) * kKnots[k + 1][1] +
+                        (3 * x2 - 2 * x) * h * kKnots[k + 1][2];
+      return dv / (h * period());
+    }
+  }
+  return 0.0;
+}
+
+double CardiacMotion::respiratory_rate(double t) const {
+  if (!settings_.respiration) return 0.0;
+  const double w = std::numbers::pi * settings_.respiratory_rate_per_min / 60.0;
+  return w * std::sin(2.0 * w * t);  // d/dt sin^2(w t)
+}
+
 double CardiacMotion::respiratory_waveform(double t) const {
   if (!settings_.respiration) return 0.0;
   const double s = std::sin(std::numbers::pi * t * settings_.respiratory_rate_per_min / 60.0);
@@ -99,6 +122,12 @@ Vec3 CardiacMotion::displacement(const Vec3& X, double t) const {
   Vec3 a_c, a_r;
   amplitudes(X, a_c, a_r);
   return cardiac_waveform(t) * a_c + respiratory_waveform(t) * a_r;
+}
+
+Vec3 CardiacMotion::velocity(const Vec3& X, double t) const {
+  Vec3 a_c, a_r;
+  amplitudes(X, a_c, a_r);
+  return cardiac_rate(t) * a_c + respiratory_rate(t) * a_r;
 }
 
 VesselTree CardiacMotion::moved_tree(const VesselTree& rest, double t) const {
@@ -211,6 +240,10 @@ BeatingLumen::BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion
     const double grow = amp + settings.tree.margin;
     p.reach.lo.array() -= grow;
     p.reach.hi.array() += grow;
+    for (std::size_t v = 0; v < p.a_cardiac.size(); ++v) {
+      max_amp_c_ = std::max(max_amp_c_, p.a_cardiac[v].norm());
+      max_amp_r_ = std::max(max_amp_r_, p.a_resp[v].norm());
+    }
     return p;
   };
   if (!static_tris.empty()) static_ = make_patch(static_tris);

@@ -96,14 +96,14 @@ void drive_feedback(Instrument& inst, const RodSettings& s) {
 // Finds the contacts of the free nodes. A node is queried with a radius reaching
 // coherence_margin beyond its contact reach; if that finds no wall, the node is skipped until it
 // (or the wall) has moved far enough to close the gap.
-void detect_contacts(Instrument& inst, const Lumen& lumen, const SolverSettings& set,
+void detect_contacts(Instrument& inst, VesselWall& wall, const SolverSettings& set,
                      StepProfile* prof) {
   const RodModel& md = inst.model;
   const RodState& st = inst.state;
   const double dt = set.rod.dt;
   inst.contacts.clear();
   int nq = 0;
-  inst.wall_travel += lumen.wall_speed_bound * dt;
+  inst.wall_travel += wall.speed_bound() * dt;
   const int first = inst.driven ? inst.drive.first_free : 0;
   for (int i = first; i < md.n; ++i) {
     if (inst.ws.inv_mass[i] == 0.0 || inst.sheathed[i]) continue;
@@ -126,9 +126,9 @@ void detect_contacts(Instrument& inst, const Lumen& lumen, const SolverSettings&
     std::fill(inst.clearance.begin(), inst.clearance.end(), 0.0);
     inst.wall_travel = 0.0;
   }
-  lumen.tree->query_spheres(*lumen.mesh, std::span<const Vec3>(inst.query_points.data(), nq),
-                            std::span<const double>(inst.query_radii.data(), nq),
-                            std::span<SphereContact>(inst.hits.data(), nq));
+  wall.query_spheres(std::span<const Vec3>(inst.query_points.data(), nq),
+                     std::span<const double>(inst.query_radii.data(), nq),
+                     std::span<SphereContact>(inst.hits.data(), nq));
   for (int k = 0; k < nq; ++k) {
     const int i = inst.query_nodes[k];
     const SphereContact& h = inst.hits[k];
@@ -145,7 +145,7 @@ void detect_contacts(Instrument& inst, const Lumen& lumen, const SolverSettings&
       continue;
     }
     inst.clearance[i] = 0.0;  // in contact: query again next step
-    inst.contacts.push_back({i, h.normal, depth, 0.0, Vec3::Zero()});
+    inst.contacts.push_back({i, h.normal, depth, 0.0, Vec3::Zero(), wall.velocity(h)});
   }
   if (prof) prof->num_queries += nq;
 }
@@ -160,12 +160,14 @@ void solve_contacts(Instrument& inst, const SolverSettings& set) {
   for (NodeContact& c : inst.contacts) {
     const double w = inst.ws.inv_mass[c.node];
     Vec3& v = inst.state.v[c.node];
+    // Velocities relative to the wall: a beating wall carries what it touches.
     const double target = c.depth > 0.0 ? beta * c.depth / dt : c.depth / dt;
-    const double vn = v.dot(c.normal);
+    const double vn = (v - c.wall_velocity).dot(c.normal);
     const double ln = std::max(0.0, c.lambda_n + (target - vn) / w);
     v += (w * (ln - c.lambda_n)) * c.normal;
     c.lambda_n = ln;
-    const Vec3 vt = v - v.dot(c.normal) * c.normal;
+    const Vec3 vr = v - c.wall_velocity;
+    const Vec3 vt = vr - vr.dot(c.normal) * c.normal;
     Vec3 lt = c.lambda_t - vt / w;
     const double lt_norm = lt.norm();
     if (lt_norm > mu_s * ln) lt *= (mu_d * ln) / lt_norm;
@@ -180,7 +182,7 @@ void remove_contact_bias(Instrument& inst, const SolverSettings& set) {
   for (const NodeContact& c : inst.contacts) {
     if (c.depth <= 0.0) continue;
     Vec3& v = inst.state.v[c.node];
-    const double vn = v.dot(c.normal);
+    const double vn = (v - c.wall_velocity).dot(c.normal);
     const double bias = set.penetration_correction * c.depth / dt;
     if (vn > 0.0) v -= std::min(vn, bias) * c.normal;
   }
@@ -299,6 +301,15 @@ void size_scratch(Instrument& inst) {
 
 }  // namespace
 
+Vec3 VesselWall::velocity(const SphereContact& /*hit*/) const {
+  return Vec3::Zero();
+}
+
+void StaticWall::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                               std::span<SphereContact> out) {
+  tree_->query_spheres(*mesh_, centres, radii, out);
+}
+
 void ContactMaterial::validate(const std::string& source) const {
   require_nonnegative(mu_static, source, "mu_static");
   require_nonnegative(mu_dynamic, source, "mu_dynamic");
@@ -358,11 +369,11 @@ Instrument make_free_instrument(const RodDef& def, const ContactMaterial& contac
   return inst;
 }
 
-void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings,
-                      const Lumen& lumen, const SolverSettings& set,
-                      std::span<const DriveCommand> cmds, StepProfile* prof) {
+void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings, VesselWall* wall,
+                      const SolverSettings& set, std::span<const DriveCommand> cmds,
+                      StepProfile* prof) {
   const RodSettings& rs = set.rod;
-  const bool collide = set.collisions && lumen.mesh != nullptr && lumen.tree != nullptr;
+  const bool collide = set.collisions && wall != nullptr;
   StepProfile p;
   auto tick = [&]() { return prof ? now_us() : 0.0; };
   const double t0 = tick();
@@ -382,7 +393,7 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   for (Coupling& c : couplings) detect_coupling(c, insts[c.inner], insts[c.outer], set);
   for (Instrument& in : insts) {
     if (collide) {
-      detect_contacts(in, lumen, set, &p);
+      detect_contacts(in, *wall, set, &p);
     } else {
       in.contacts.clear();
     }
@@ -433,9 +444,9 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   }
 }
 
-void instrument_step(Instrument& inst, const Lumen& lumen, const SolverSettings& set,
+void instrument_step(Instrument& inst, VesselWall* wall, const SolverSettings& set,
                      const DriveCommand& cmd, StepProfile* prof) {
-  step_instruments(std::span<Instrument>(&inst, 1), {}, lumen, set,
+  step_instruments(std::span<Instrument>(&inst, 1), {}, wall, set,
                    std::span<const DriveCommand>(&cmd, 1), prof);
 }
 

@@ -115,7 +115,7 @@ CompressionScene make_compression_scene(const CompressionOptions& o, DistanceMet
 CompressionRow run_compression(const CompressionOptions& o, DistanceMethod method, int iterations) {
   CompressionScene sc = make_compression_scene(o, method, iterations);
   Instrument& inst = sc.inst;
-  const Lumen lumen = sc.lumen();
+  StaticWall wall = sc.wall();
   const double dt = sc.settings.rod.dt;
   const auto centreline = bent_centreline(o.straight1, o.bend_radius,
                                           o.bend_angle_deg * std::numbers::pi / 180.0, o.straight2);
@@ -135,7 +135,7 @@ CompressionRow run_compression(const CompressionOptions& o, DistanceMethod metho
   for (long long k = 0; k < steps; ++k) {
     const double t = static_cast<double>(k + 1) * dt;
     cmd.translation = std::min(o.end_depth, o.start_depth + o.push_speed * t);
-    instrument_step(inst, lumen, sc.settings, cmd, &prof);
+    instrument_step(inst, &wall, sc.settings, cmd, &prof);
     total.push_back(prof.total);
     cons.push_back(prof.constraints);
     forces.push_back(prof.forces);

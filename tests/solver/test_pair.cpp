@@ -56,10 +56,11 @@ TEST(Pair, WireStaysInTheCatheterThroughInsertionRotationAndWithdrawal) {
   };
   double worst[3] = {0.0, 0.0, 0.0};
   int coupled = 0;
+  StaticWall wall = sc.wall();
   for (int p = 0; p < 3; ++p) {
     const DriveCommand cmds[] = {phases[p].wire, phases[p].cath};
     for (int k = 0; k < phases[p].steps; ++k) {
-      step_instruments(sc.instruments, sc.couplings, sc.lumen(), sc.settings, cmds);
+      step_instruments(sc.instruments, sc.couplings, &wall, sc.settings, cmds);
       if (k % 25 == 0) {
         worst[p] = std::max(worst[p], worst_offset(sc));
         coupled = std::max(coupled, static_cast<int>(sc.couplings[0].contacts.size()));

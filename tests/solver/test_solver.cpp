@@ -48,7 +48,7 @@ struct StraightTube {
     check_and_repair(mesh, "test tube");
     tree.build(mesh);
   }
-  Lumen lumen() const { return {&mesh, &tree, 0.0}; }
+  StaticWall wall() const { return StaticWall(mesh, tree); }
 };
 
 }  // namespace
@@ -66,8 +66,9 @@ TEST(Solver, HardPushIntoADeadEndStaysInsideForTenSeconds) {
   s.rod.gravity = Vec3(0, -9.81, 0);
   DriveCommand push{DriveCommand::Mode::kVelocity, 0.1, 0.0};  // 100 mm/s, on and on
   double worst = 0.0;
+  StaticWall wall = tube.wall();
   for (int k = 0; k < 10000; ++k) {
-    instrument_step(inst, tube.lumen(), s, push);
+    instrument_step(inst, &wall, s, push);
     if (k % 50 != 0 && k < 9990) continue;
     for (int i = inst.drive.first_free; i < inst.model.n; ++i) {
       const Vec3& x = inst.state.x[i];
@@ -109,9 +110,10 @@ TEST_P(Incline, SlidesOnlyBeyondTheFrictionAngle) {
   const int steps = static_cast<int>(t_end / s.rod.dt);
   // Let it settle onto the plane for a moment before measuring.
   double x0 = 0.0;
+  StaticWall wall(plane, tree);
   for (int k = 0; k < steps; ++k) {
     if (k == steps / 10) x0 = inst.state.x[5].x();
-    instrument_step(inst, Lumen{&plane, &tree, 0.0}, s, DriveCommand{});
+    instrument_step(inst, &wall, s, DriveCommand{});
   }
   const double t = t_end - (steps / 10) * s.rod.dt;
   const double moved = inst.state.x[5].x() - x0;
@@ -141,9 +143,10 @@ TEST(Solver, DriveFeelsTheDeadEnd) {
   SolverSettings s;
   s.rod.dt = dt;
   s.rod.drag = 20.0;
+  StaticWall wall = tube.wall();
   auto push_to = [&](double depth, int settle) {
     DriveCommand c{DriveCommand::Mode::kPosition, depth, 0.0};
-    for (int k = 0; k < settle; ++k) instrument_step(inst, tube.lumen(), s, c);
+    for (int k = 0; k < settle; ++k) instrument_step(inst, &wall, s, c);
     return inst.drive.axial_force;
   };
   const double free_force = push_to(0.05, 800);  // tip 10 mm short of the end
@@ -166,7 +169,8 @@ TEST(Solver, TurningAtTheHandTurnsTheTip) {
   s.rod.angular_drag = 20.0;
   const double turn = std::numbers::pi / 2;
   DriveCommand c{DriveCommand::Mode::kPosition, 0.06, turn};
-  for (int k = 0; k < 3000; ++k) instrument_step(inst, tube.lumen(), s, c);
+  StaticWall wall = tube.wall();
+  for (int k = 0; k < 3000; ++k) instrument_step(inst, &wall, s, c);
   const Vec3 d1 = inst.state.q.back() * Vec3::UnitX();
   EXPECT_NEAR(std::atan2(d1.y(), d1.x()), turn, 0.02) << "the tip follows the hand's roll";
   EXPECT_NEAR(inst.drive.torque, 0.0, 1e-6) << "no friction: nothing resists once turned";

@@ -37,11 +37,12 @@ TEST(SolverNoAlloc, WarmInstrumentStepWithContactsAllocatesNothing) {
   s.rod.drag = 20;
   DriveCommand c{DriveCommand::Mode::kVelocity, 0.1, 1.0};
   StepProfile prof;
-  for (int k = 0; k < 300; ++k) instrument_step(inst, Lumen{&mesh, &tree, 0.0}, s, c, &prof);
+  StaticWall wall(mesh, tree);
+  for (int k = 0; k < 300; ++k) instrument_step(inst, &wall, s, c, &prof);
   const long before = g_allocations.load();
   int contacts = 0;
   for (int k = 0; k < 300; ++k) {
-    instrument_step(inst, Lumen{&mesh, &tree, 0.0}, s, c, &prof);
+    instrument_step(inst, &wall, s, c, &prof);
     contacts = std::max(contacts, prof.num_contacts);
   }
   EXPECT_EQ(g_allocations.load() - before, 0);

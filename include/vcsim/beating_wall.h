@@ -1,0 +1,34 @@
+// The beating lumen as the solver's vessel wall: instruments collide with the wall where it is at
+// the current time and are carried by its velocity (contacts and friction act on the velocity
+// relative to the wall).
+#pragma once
+
+#include "vcsim/anatomy.h"
+#include "vcsim/solver.h"
+
+namespace vcsim {
+
+class BeatingWall final : public VesselWall {
+ public:
+  // `lumen` is owned by the caller and must outlive the wall.
+  explicit BeatingWall(BeatingLumen& lumen);
+
+  // Time (s) the next queries see; the sim layer sets it before each step.
+  void set_time(double t) { time_ = t; }
+  double time() const { return time_; }
+
+  // Moves the patches the spheres can touch to the current time, then queries them.
+  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                     std::span<SphereContact> out) override;
+  // du/dt of the motion field at the rest point under the contact point.
+  Vec3 velocity(const SphereContact& hit) const override;
+  // max |a_cardiac| max |dc/dt| + max |a_resp| max |dr/dt| over the moving wall.
+  double speed_bound() const override { return speed_bound_; }
+
+ private:
+  BeatingLumen* lumen_;
+  double time_ = 0.0;
+  double speed_bound_ = 0.0;
+};
+
+}  // namespace vcsim
