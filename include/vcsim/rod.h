@@ -165,6 +165,7 @@ struct RodWorkspace {
   std::vector<double> inv_mass;    // (n)
   std::vector<double> frame_free;  // (m) 1 for a dynamic frame, 0 for a prescribed one
   std::vector<Vec3> node_impulse;  // (n) constraint impulses of this step (N s), held nodes too
+  std::vector<double> scratch;     // 6 (m + 2): per-vertex and per-edge terms of rod_forces
   void resize(const RodModel& model);
 };
 

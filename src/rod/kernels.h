@@ -68,11 +68,19 @@ inline double stretch_penalty(const Vec3& xa, const Vec3& xb, double l, double e
   return 0.5 * ea / l * ext * ext;
 }
 
-// Body-frame angular acceleration from Euler's equations with a diagonal inertia I:
-// I dw/dt = tau_b - w x (I w)  (physics.md eq. 9).
-inline Vec3 euler_rhs(const Vec3& w, const Vec3& inertia, const Vec3& inv_inertia,
-                      const Vec3& tau_body) {
-  return inv_inertia.cwiseProduct(tau_body - w.cross(inertia.cwiseProduct(w)));
+// One step of Euler's equations for a frame with I1 = I2 (every rod section): the torque as an
+// explicit kick, then the gyroscopic term, which for a symmetric body only turns (w1, w2) about
+// the axis at Omega = (I3 - I1) / I1 w3 (w3 unchanged), as a rotation by the Cayley angle of
+// a = Omega dt (cos -> (1 - a^2/4) / (1 + a^2/4), sin -> a / (1 + a^2/4)). Unlike the explicit
+// term, which grows |w| by sqrt(1 + a^2) per step and turns a twisting, bending frame into a
+// runaway spin, this keeps |I w| exactly for any step (physics.md eq. 9).
+inline Vec3 integrate_spin(const Vec3& w, const Vec3& inertia, const Vec3& inv_inertia,
+                           const Vec3& tau_body, double dt) {
+  const Vec3 k = w + dt * inv_inertia.cwiseProduct(tau_body);
+  const double a = dt * (inertia.z() - inertia.x()) * inv_inertia.x() * k.z();
+  const double d = 1.0 / (1.0 + 0.25 * a * a);
+  const double c = (1.0 - 0.25 * a * a) * d, s = a * d;
+  return Vec3(c * k.x() - s * k.y(), s * k.x() + c * k.y(), k.z());
 }
 
 // q <- normalise(q + dt/2 q (0, w)), the semi-implicit frame update (physics.md eq. 10),

@@ -260,6 +260,7 @@ void RodWorkspace::resize(const RodModel& md) {
   inv_mass = md.inv_mass;
   frame_free.assign(md.m, 1.0);
   node_impulse.assign(md.n, Vec3::Zero());
+  scratch.assign(6 * static_cast<std::size_t>(md.m + 2), 0.0);
 }
 
 Vec3 darboux(const Quat& qa, const Quat& qb, double l) {

@@ -66,20 +66,102 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
   const double* __restrict kp = md.kp.data();
   const Vec3* __restrict kv = md.vertex_stiffness.data();
   const Vec3* __restrict w0 = md.rest_darboux.data();
-  // Gravity, applied loads and mass-proportional drag on the nodes.
-  const Vec3 g = s.gravity;
-  const double drag = s.drag;
-  for (int i = 0; i < n; ++i) force[i] = mass[i] * (g - drag * v[i]) + st.f_ext[i];
-  for (int j = 0; j < m; ++j) torque[j] = st.tau_ext[j];
-  // One pass over the edges: the frame as a matrix (reused by every rotation of this step),
-  // bending and twisting at the vertex before the edge, and the edge's parallel penalty.
+  // The frames, bending and twisting, and the parallel penalty as flat loops over plain arrays
+  // (quaternion, matrix and vector coefficients addressed directly), which the compiler turns
+  // into SIMD code across edges; each vertex's and edge's contribution is written once and the
+  // sums per node and frame are formed afterwards, so no loop carries a dependency.
+  static_assert(sizeof(Quat) == 4 * sizeof(double) && sizeof(Vec3) == 3 * sizeof(double) &&
+                sizeof(Mat3) == 9 * sizeof(double));
+  const double* __restrict Q = q[0].coeffs().data();  // (x, y, z, w) per frame
+  double* __restrict R = rot[0].data();               // column-major 3 x 3 per frame
+  const double* __restrict X = x[0].data();
+  const double* __restrict K = kv[0].data();
+  const double* __restrict W0 = w0[0].data();
+  // Scratch: bending torques G per vertex (0..m) and parallel forces P per edge, stored at
+  // edge + 1 so that P[0] = P[m + 1] = 0 close the node sums.
+  double* __restrict gx = ws.scratch.data();
+  double* __restrict gy = gx + (m + 2);
+  double* __restrict gz = gy + (m + 2);
+  double* __restrict px = gz + (m + 2);
+  double* __restrict py = px + (m + 2);
+  double* __restrict pz = py + (m + 2);
+  // 1. Frame j as a rotation matrix (material -> world), kept for the rest of the step.
   for (int j = 0; j < m; ++j) {
-    rot[j] = q[j].toRotationMatrix();
-    if (j > 0) {
-      bend_twist(q[j - 1], rot[j - 1], q[j], lv[j], kv[j], w0[j], torque[j - 1], torque[j]);
-    }
-    parallel_penalty(x[j], x[j + 1], rot[j].col(2), rest[j], kp[j], force[j], force[j + 1],
-                     torque[j]);
+    const double qx = Q[4 * j], qy = Q[4 * j + 1], qz = Q[4 * j + 2], qw = Q[4 * j + 3];
+    const double tx = 2 * qx, ty = 2 * qy, tz = 2 * qz;
+    const double twx = tx * qw, twy = ty * qw, twz = tz * qw;
+    const double txx = tx * qx, txy = ty * qx, txz = tz * qx;
+    const double tyy = ty * qy, tyz = tz * qy, tzz = tz * qz;
+    double* r = R + 9 * j;
+    r[0] = 1 - (tyy + tzz);
+    r[1] = txy + twz;
+    r[2] = txz - twy;
+    r[3] = txy - twz;
+    r[4] = 1 - (txx + tzz);
+    r[5] = tyz + twx;
+    r[6] = txz + twy;
+    r[7] = tyz - twx;
+    r[8] = 1 - (txx + tyy);
+  }
+  // 2. Bending and twisting at interior vertex k between frames a = k - 1 and b = k
+  // (kernels.h bend_twist, physics.md eqs. 2-5): G_k = R_a g, added to frame a, taken from b.
+  gx[0] = gy[0] = gz[0] = 0.0;
+  gx[m] = gy[m] = gz[m] = 0.0;
+  for (int k = 1; k < m; ++k) {
+    const double* a = Q + 4 * (k - 1);
+    const double* b = Q + 4 * k;
+    const double aw = a[3], ax = -a[0], ay = -a[1], az = -a[2];
+    const double bw = b[3], bx = b[0], by = b[1], bz = b[2];
+    const double w = aw * bw - ax * bx - ay * by - az * bz;
+    const double sg = w < 0.0 ? -1.0 : 1.0;  // the double cover: r.w >= 0
+    const double rw = sg * w;
+    const double rx = sg * (aw * bx + ax * bw + ay * bz - az * by);
+    const double ry = sg * (aw * by - ax * bz + ay * bw + az * bx);
+    const double rz = sg * (aw * bz + ax * by - ay * bx + az * bw);
+    const double two_l = 2.0 / lv[k];
+    const double kx = K[3 * k] * (two_l * rx - W0[3 * k]);
+    const double ky = K[3 * k + 1] * (two_l * ry - W0[3 * k + 1]);
+    const double kz = K[3 * k + 2] * (two_l * rz - W0[3 * k + 2]);
+    const double g0 = rw * kx + (ry * kz - rz * ky);
+    const double g1 = rw * ky + (rz * kx - rx * kz);
+    const double g2 = rw * kz + (rx * ky - ry * kx);
+    const double* ra = R + 9 * (k - 1);
+    gx[k] = ra[0] * g0 + ra[3] * g1 + ra[6] * g2;
+    gy[k] = ra[1] * g0 + ra[4] * g1 + ra[7] * g2;
+    gz[k] = ra[2] * g0 + ra[5] * g1 + ra[8] * g2;
+  }
+  // 3. The parallel penalty of edge j (kernels.h parallel_penalty, eq. 6) and the frame torques.
+  px[0] = py[0] = pz[0] = 0.0;
+  px[m + 1] = py[m + 1] = pz[m + 1] = 0.0;
+  const double* __restrict te = st.tau_ext[0].data();
+  double* __restrict T = torque[0].data();
+  for (int j = 0; j < m; ++j) {
+    const double ex = X[3 * j + 3] - X[3 * j], ey = X[3 * j + 4] - X[3 * j + 1],
+                 ez = X[3 * j + 5] - X[3 * j + 2];
+    const double* r = R + 9 * j;
+    const double dx = r[6], dy = r[7], dz = r[8];  // d3
+    const double l = rest[j];
+    const double ux = ex / l, uy = ey / l, uz = ez / l;
+    const double axial = ux * dx + uy * dy + uz * dz;
+    const double k = kp[j];
+    px[j + 1] = k * (ux - axial * dx);
+    py[j + 1] = k * (uy - axial * dy);
+    pz[j + 1] = k * (uz - axial * dz);
+    const double ka = k * axial;
+    T[3 * j] = te[3 * j] + (gx[j + 1] - gx[j]) + ka * (dy * ez - dz * ey);
+    T[3 * j + 1] = te[3 * j + 1] + (gy[j + 1] - gy[j]) + ka * (dz * ex - dx * ez);
+    T[3 * j + 2] = te[3 * j + 2] + (gz[j + 1] - gz[j]) + ka * (dx * ey - dy * ex);
+  }
+  // 4. Node forces: gravity, applied loads, mass-proportional drag, the penalty of both edges.
+  const double* __restrict V = v[0].data();
+  const double* __restrict fe = st.f_ext[0].data();
+  double* __restrict F = force[0].data();
+  const double g0 = s.gravity.x(), g1 = s.gravity.y(), g2 = s.gravity.z();
+  const double drag = s.drag;
+  for (int i = 0; i < n; ++i) {
+    F[3 * i] = mass[i] * (g0 - drag * V[3 * i]) + fe[3 * i] + (px[i + 1] - px[i]);
+    F[3 * i + 1] = mass[i] * (g1 - drag * V[3 * i + 1]) + fe[3 * i + 1] + (py[i + 1] - py[i]);
+    F[3 * i + 2] = mass[i] * (g2 - drag * V[3 * i + 2]) + fe[3 * i + 2] + (pz[i + 1] - pz[i]);
   }
   if (s.angular_drag > 0.0) {
     for (int j = 0; j < m; ++j) {
@@ -158,7 +240,9 @@ void rod_integrate_velocities(const RodModel& md, const RodSettings& s, RodState
   for (int i = 0; i < md.n; ++i) vel[i] += (dt * inv_m[i]) * f[i];
   for (int j = 0; j < md.m; ++j) {
     const Vec3 tau_body = rot[j].transpose() * tau[j];
-    w[j] += (dt * free[j]) * euler_rhs(w[j], inertia[j], inv_inertia[j], tau_body);
+    // Prescribed frames (free = 0) keep their angular velocity.
+    const Vec3 w_new = integrate_spin(w[j], inertia[j], inv_inertia[j], tau_body, dt);
+    if (free[j] != 0.0) w[j] = w_new;
   }
 }
 
