@@ -191,11 +191,14 @@ void test_triangle(const TriangleMesh& mesh, int t, const Vec3& centre, double r
   const Vec3& a = mesh.vertices[tri[0]];
   const Vec3& b = mesh.vertices[tri[1]];
   const Vec3& c = mesh.vertices[tri[2]];
+  const Vec3& n = mesh.normals[t];
+  // The distance to the triangle's plane bounds the distance to the triangle from below.
+  const double h = n.dot(centre - a);
+  if (h * h > search2) return;
   const ClosestPoint cp = closest_point_on_triangle(centre, a, b, c);
   const double d2 = (centre - cp.point).squaredNorm();
   if (d2 > search2) return;
   const double d = std::sqrt(d2);
-  const Vec3& n = mesh.normals[t];
 
   // Inside/outside from the closest feature's pseudo-normal (Baerentzen and Aanaes, IEEE TVCG
   // 2005): a face's own normal, the sum over the faces of an edge, the angle-weighted sum at a
@@ -319,19 +322,22 @@ SphereContact AabbTree::query_sphere(const TriangleMesh& mesh, const Vec3& centr
   const double search = radius + settings.escape_distance;
   const double search2 = search * search;
   Accumulator acc;
+  // Only nodes whose boxes reach the sphere are pushed: children are tested where their parent
+  // is expanded (siblings are adjacent in memory), so far subtrees cost no stack traffic.
+  if (box_distance2(nodes_[0].box, centre) > search2) return out;
   std::array<int, kMaxDepth + 2> stack;
   int top = 0;
   stack[top++] = 0;
   while (top > 0) {
     const AabbNode& node = nodes_[stack[--top]];
-    if (box_distance2(node.box, centre) > search2) continue;
     if (node.is_leaf()) {
       for (int k = node.first; k < node.first + node.count; ++k)
         test_triangle(mesh, order_[k], centre, radius, search2, acc);
-    } else {
-      stack[top++] = node.first;
-      stack[top++] = node.first + 1;
+      continue;
     }
+    const int l = node.first;
+    if (box_distance2(nodes_[l].box, centre) <= search2) stack[top++] = l;
+    if (box_distance2(nodes_[l + 1].box, centre) <= search2) stack[top++] = l + 1;
   }
   if (acc.triangle < 0) return out;
 
