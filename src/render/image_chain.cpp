@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <thread>
 
 #include "vcsim/render.h"
 
@@ -35,6 +36,20 @@ inline float normal_approx(std::mt19937_64& rng) {
   return (sum - 2.0f * 65535.0f) * kScale;
 }
 
+// Runs f(row_begin, row_end) over [0, n) rows on up to two threads (the per-pixel stages are
+// independent; a frame must fit a fluoroscopy frame period).
+template <typename F>
+void parallel_rows(std::size_t n, F&& f) {
+  const unsigned hw = std::thread::hardware_concurrency();
+  if (hw < 2 || n < 64) {
+    f(0, n);
+    return;
+  }
+  std::thread t([&] { f(n / 2, n); });
+  f(0, n / 2);
+  t.join();
+}
+
 // Value at fraction q of the sorted sample (partial sort of a copy).
 float percentile(std::vector<float> v, double q) {
   if (v.empty()) return 0.0f;
@@ -64,48 +79,54 @@ void image_chain(std::span<const float> p, int size, const ImageChainSettings& s
         if (r2_at(i, j) < radius * radius) inside.push_back(p[i * n + j]);
     const double p_lo = percentile(inside, 0.01), p_hi = percentile(inside, 0.99);
     lo = p_lo - 0.05 * (p_hi - p_lo);
-    hi = p_hi + 0.35 * (p_hi - p_lo);
+    hi = p_hi + 0.15 * (p_hi - p_lo);
   }
   if (hi <= lo) hi = lo + 1e-3;
 
   // Detected photons N ~ Poisson(I0 exp(-p)); for a mean above 10 the normal approximation
   // (mean and variance lambda) is used, exact Poisson sampling below.
   std::vector<float> q(n * n, 0.0f);
-  std::mt19937_64 rng(s.seed);
   const bool noise = s.dose > 0.0;
   const double i0 = noise ? s.dose : 1.0;
   // Rows and columns that can reach the collimated field (a pixel of blur margin).
   const double reach = radius + 2.0;
   const auto fi0 = static_cast<float>(i0);
-  for (std::size_t i = 0; i < n; ++i) {
-    const double dy = static_cast<double>(i) - c;
-    if (std::abs(dy) > reach) continue;
-    const double half = std::sqrt(std::max(0.0, reach * reach - dy * dy));
-    const auto j0 = static_cast<std::size_t>(std::max(0.0, std::floor(c - half)));
-    const auto j1 =
-        static_cast<std::size_t>(std::min(static_cast<double>(n), std::ceil(c + half + 1)));
-    for (std::size_t j = j0; j < j1; ++j) {
-      const std::size_t k = i * n + j;
-      const float lambda = fi0 * std::exp(-p[k]);
-      float counts = lambda;
-      if (noise) {
-        if (lambda > 10.0f) {
-          counts = lambda + std::sqrt(lambda) * normal_approx(rng);
-        } else {
-          // Knuth's multiplication method: about lambda uniforms.
-          const double limit = std::exp(-static_cast<double>(lambda));
-          double prod = 1.0;
-          int k_count = -1;
-          do {
-            ++k_count;
-            prod *= static_cast<double>(rng() >> 11) * (1.0 / 9007199254740992.0);
-          } while (prod > limit);
-          counts = static_cast<float>(k_count);
+  // Each row draws from its own generator seeded by (seed, row), so a frame is the same whatever
+  // the number of threads sharing the rows.
+  auto noise_rows = [&](std::size_t row_begin, std::size_t row_end) {
+    std::mt19937_64 rng;
+    for (std::size_t i = row_begin; i < row_end; ++i) {
+      const double dy = static_cast<double>(i) - c;
+      if (std::abs(dy) > reach) continue;
+      rng.seed(s.seed * 0x9E3779B97F4A7C15ull + i);
+      const double half = std::sqrt(std::max(0.0, reach * reach - dy * dy));
+      const auto j0 = static_cast<std::size_t>(std::max(0.0, std::floor(c - half)));
+      const auto j1 =
+          static_cast<std::size_t>(std::min(static_cast<double>(n), std::ceil(c + half + 1)));
+      for (std::size_t j = j0; j < j1; ++j) {
+        const std::size_t k = i * n + j;
+        const float lambda = fi0 * std::exp(-p[k]);
+        float counts = lambda;
+        if (noise) {
+          if (lambda > 10.0f) {
+            counts = lambda + std::sqrt(lambda) * normal_approx(rng);
+          } else {
+            // Knuth's multiplication method: about lambda uniforms.
+            const double limit = std::exp(-static_cast<double>(lambda));
+            double prod = 1.0;
+            int k_count = -1;
+            do {
+              ++k_count;
+              prod *= static_cast<double>(rng() >> 11) * (1.0 / 9007199254740992.0);
+            } while (prod > limit);
+            counts = static_cast<float>(k_count);
+          }
         }
+        q[k] = counts;
       }
-      q[k] = counts;
     }
-  }
+  };
+  parallel_rows(n, noise_rows);
 
   // Correlation blur (separable 3-tap Gaussian) on the detected signal.
   if (s.blur_sigma_px > 0.0) {
@@ -130,20 +151,24 @@ void image_chain(std::span<const float> p, int size, const ImageChainSettings& s
   const double inv_gamma = 1.0 / s.gamma;
   const float min_ratio = static_cast<float>(0.5 / i0), inv_i0 = static_cast<float>(1.0 / i0);
   const double r_in = std::max(0.0, radius - 1.0), r_out = radius + 1.0;
-  for (std::size_t i = 0; i < n; ++i)
-    for (std::size_t j = 0; j < n; ++j) {
-      const double r2 = r2_at(i, j);
-      if (r2 >= r_out * r_out) continue;
-      // Vignetting falls with r^2; a soft collimator edge about one pixel wide.
-      float field = static_cast<float>(1.0 - s.vignetting * std::min(1.0, r2 / (radius * radius)));
-      if (r2 > r_in * r_in)
-        field *= static_cast<float>(std::clamp((radius - std::sqrt(r2)) / 1.5 + 0.5, 0.0, 1.0));
-      const std::size_t k = i * n + j;
-      const float pe = -std::log(std::max(q[k] * inv_i0, min_ratio));
-      float g = 1.0f - std::clamp((pe - f_lo) * inv_w, 0.0f, 1.0f);
-      if (s.gamma != 1.0) g = static_cast<float>(std::pow(g, inv_gamma));
-      out[k] = static_cast<std::uint8_t>(255.0f * std::clamp(g * field, 0.0f, 1.0f) + 0.5f);
-    }
+  auto display_rows = [&](std::size_t row_begin, std::size_t row_end) {
+    for (std::size_t i = row_begin; i < row_end; ++i)
+      for (std::size_t j = 0; j < n; ++j) {
+        const double r2 = r2_at(i, j);
+        if (r2 >= r_out * r_out) continue;
+        // Vignetting falls with r^2; a soft collimator edge about one pixel wide.
+        float field =
+            static_cast<float>(1.0 - s.vignetting * std::min(1.0, r2 / (radius * radius)));
+        if (r2 > r_in * r_in)
+          field *= static_cast<float>(std::clamp((radius - std::sqrt(r2)) / 1.5 + 0.5, 0.0, 1.0));
+        const std::size_t k = i * n + j;
+        const float pe = -std::log(std::max(q[k] * inv_i0, min_ratio));
+        float g = 1.0f - std::clamp((pe - f_lo) * inv_w, 0.0f, 1.0f);
+        if (s.gamma != 1.0) g = static_cast<float>(std::pow(g, inv_gamma));
+        out[k] = static_cast<std::uint8_t>(255.0f * std::clamp(g * field, 0.0f, 1.0f) + 0.5f);
+      }
+  };
+  parallel_rows(n, display_rows);
 }
 
 }  // namespace vcsim
