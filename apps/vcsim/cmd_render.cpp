@@ -71,7 +71,9 @@ Scene load_scene(FluoroRenderer& r, float contrast) {
   s.tree = default_patient();
   const Lumen lumen = build_lumen(s.tree);
   r.add_mesh(lumen_xray_mesh(lumen));
-  for (const XrayMesh& m : body_xray_meshes(build_body_context(s.tree))) r.add_mesh(m);
+  // The body does not move between frames (no respiration yet): drawn once per C-arm pose.
+  for (const XrayMesh& m : body_xray_meshes(build_body_context(s.tree)))
+    r.set_static(r.add_mesh(m), true);
   s.instruments = demo_instruments(s.tree);
   for (const InstrumentVisual& inst : s.instruments)
     for (const XrayMesh& m : instrument_xray_meshes(inst)) {

@@ -190,6 +190,9 @@ class FluoroRenderer {
   // Replaces a mesh's geometry (instruments every frame); material and groups kept.
   void update_mesh(int id, const TriangleMesh& mesh);
   void set_visible(int id, bool visible);
+  // A static mesh (e.g. the body context) is drawn once per pose and beam energy into a cached
+  // line integral that each kLineIntegral frame starts from; the others are drawn every frame.
+  void set_static(int id, bool is_static);
   // Concentration per group (e.g. per segment), fraction of 350 mgI/ml; at most 256 groups.
   void set_group_concentration(std::span<const float> c);
   void set_beam_energy(BeamEnergy e) { energy_ = e; }

@@ -145,6 +145,7 @@ struct FluoroRenderer::Impl {
     float fill = 1.0f;
     bool groups = false;
     bool visible = true;
+    bool is_static = false;  // drawn into the per-pose cache (kLineIntegral)
     // Index ranges of runs of triangles in one group (lumen segments are contiguous), so that
     // segments without contrast can be skipped when only their iodine would count.
     struct Range {
@@ -156,6 +157,11 @@ struct FluoroRenderer::Impl {
   std::vector<GpuMesh> meshes;
   GLuint accum_prog = 0, line_prog = 0, reduce_prog = 0;
   GLuint accum_fbo = 0, reduce_fbo = 0, tex_l0 = 0, tex_l1 = 0, tex_p = 0, empty_vao = 0;
+  // Line integral of the static meshes for the pose and energy it was drawn for.
+  GLuint static_fbo = 0, tex_static = 0;
+  bool static_valid = false;
+  CArmPose static_pose;
+  BeamEnergy static_energy = BeamEnergy::k60keV;
   std::array<float, kMaxGroups> conc{};
   // Uniform locations.
   // Uniform locations of the accumulation programs ([0] per material, [1] line integral).
@@ -237,6 +243,11 @@ FluoroRenderer::FluoroRenderer(int size) : impl_(std::make_unique<Impl>()), size
   glBindFramebuffer(GL_FRAMEBUFFER, m.reduce_fbo);
   glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, m.tex_p, 0);
   check_framebuffer("line-integral");
+  m.tex_static = float_texture(GL_R32F, GL_RED, size);
+  glGenFramebuffers(1, &m.static_fbo);
+  glBindFramebuffer(GL_FRAMEBUFFER, m.static_fbo);
+  glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, m.tex_static, 0);
+  check_framebuffer("static line-integral");
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
   glGenVertexArrays(1, &m.empty_vao);
 }
@@ -249,10 +260,10 @@ FluoroRenderer::~FluoroRenderer() {
     glDeleteBuffers(3, b);
   }
   glDeleteVertexArrays(1, &m.empty_vao);
-  GLuint fbos[2] = {m.accum_fbo, m.reduce_fbo};
-  glDeleteFramebuffers(2, fbos);
-  GLuint tex[3] = {m.tex_l0, m.tex_l1, m.tex_p};
-  glDeleteTextures(3, tex);
+  GLuint fbos[3] = {m.accum_fbo, m.reduce_fbo, m.static_fbo};
+  glDeleteFramebuffers(3, fbos);
+  GLuint tex[4] = {m.tex_l0, m.tex_l1, m.tex_p, m.tex_static};
+  glDeleteTextures(4, tex);
   glDeleteProgram(m.accum_prog);
   glDeleteProgram(m.line_prog);
   glDeleteProgram(m.reduce_prog);
@@ -283,14 +294,22 @@ int FluoroRenderer::add_mesh(const XrayMesh& x) {
   return static_cast<int>(impl_->meshes.size()) - 1;
 }
 
+void FluoroRenderer::set_static(int id, bool is_static) {
+  impl_->meshes.at(static_cast<std::size_t>(id)).is_static = is_static;
+  impl_->static_valid = false;
+}
+
 void FluoroRenderer::update_mesh(int id, const TriangleMesh& mesh) {
   auto& g = impl_->meshes.at(static_cast<std::size_t>(id));
+  if (g.is_static) impl_->static_valid = false;
   if (g.groups) throw std::invalid_argument("render: update_mesh on a grouped mesh");
   impl_->upload(g, mesh, nullptr);
 }
 
 void FluoroRenderer::set_visible(int id, bool visible) {
-  impl_->meshes.at(static_cast<std::size_t>(id)).visible = visible;
+  auto& g = impl_->meshes.at(static_cast<std::size_t>(id));
+  if (g.is_static && g.visible != visible) impl_->static_valid = false;
+  g.visible = visible;
 }
 
 void FluoroRenderer::set_group_concentration(std::span<const float> c) {
@@ -310,13 +329,10 @@ void FluoroRenderer::render(const CArmPose& pose, FluoroOutput output) {
   const auto w = line_integral_weights(energy_);
   const int iodine = static_cast<int>(XrayMaterial::kIodine);
 
-  glBindFramebuffer(GL_FRAMEBUFFER, per_material ? m.accum_fbo : m.reduce_fbo);
   glViewport(0, 0, size_, size_);
   glClearColor(0.0f, 0.0f, 0.0f, 0.0f);
-  glClear(GL_COLOR_BUFFER_BIT);
   glDisable(GL_DEPTH_TEST);
   glDisable(GL_CULL_FACE);
-  glEnable(GL_BLEND);
   glBlendEquation(GL_FUNC_ADD);
   glBlendFunc(GL_ONE, GL_ONE);
   // The view is a mirror (the image as seen from the detector), so outward counter-clockwise
@@ -328,36 +344,72 @@ void FluoroRenderer::render(const CArmPose& pose, FluoroOutput output) {
               static_cast<float>(f.source.z()));
   glUniform1f(m.u_ref[k], static_cast<float>(pose.sod));
   glUniform1fv(m.u_conc[k], kMaxGroups, m.conc.data());
-  for (const auto& g : m.meshes) {
-    if (!g.visible || g.count == 0) continue;
-    const int mat = static_cast<int>(g.material);
-    if (per_material) {
-      float plain[8] = {}, grouped[8] = {};
-      plain[mat] = g.fill;
-      if (g.groups) grouped[iodine] = g.fill;
-      glUniform4fv(m.u_plain0, 1, plain);
-      glUniform4fv(m.u_plain1, 1, plain + 4);
-      glUniform4fv(m.u_group0, 1, grouped);
-      glUniform4fv(m.u_group1, 1, grouped + 4);
-    } else {
-      if (w[mat] == 0.0f && !g.groups) continue;
-      glUniform1f(m.u_wplain, g.fill * w[mat]);
-      glUniform1f(m.u_wgroup, g.groups ? g.fill * w[iodine] : 0.0f);
-    }
-    glUniform1i(m.u_use_groups[k], g.groups ? 1 : 0);
-    glBindVertexArray(g.vao);
-    if (!per_material && g.groups && w[mat] == 0.0f) {
-      // Blood adds nothing over soft tissue (w = 0): only groups holding contrast count.
-      for (const auto& r : g.ranges) {
-        const float c = r.group >= 0 && r.group < kMaxGroups ? m.conc[r.group] : 0.0f;
-        if (c != 0.0f)
-          glDrawElements(GL_TRIANGLES, r.count, GL_UNSIGNED_INT,
-                         reinterpret_cast<const void*>(static_cast<std::uintptr_t>(r.first) *
-                                                       sizeof(unsigned)));
+  // Draws the visible meshes whose static flag is `statics` (all of them for `all`).
+  auto draw = [&](bool all, bool statics) {
+    for (const auto& g : m.meshes) {
+      if (!g.visible || g.count == 0 || (!all && g.is_static != statics)) continue;
+      const int mat = static_cast<int>(g.material);
+      if (per_material) {
+        float plain[8] = {}, grouped[8] = {};
+        plain[mat] = g.fill;
+        if (g.groups) grouped[iodine] = g.fill;
+        glUniform4fv(m.u_plain0, 1, plain);
+        glUniform4fv(m.u_plain1, 1, plain + 4);
+        glUniform4fv(m.u_group0, 1, grouped);
+        glUniform4fv(m.u_group1, 1, grouped + 4);
+      } else {
+        if (w[mat] == 0.0f && !g.groups) continue;
+        glUniform1f(m.u_wplain, g.fill * w[mat]);
+        glUniform1f(m.u_wgroup, g.groups ? g.fill * w[iodine] : 0.0f);
       }
-      continue;
+      glUniform1i(m.u_use_groups[k], g.groups ? 1 : 0);
+      glBindVertexArray(g.vao);
+      if (!per_material && g.groups && w[mat] == 0.0f) {
+        // Blood adds nothing over soft tissue (w = 0): only groups holding contrast count.
+        for (const auto& r : g.ranges) {
+          const float c = r.group >= 0 && r.group < kMaxGroups ? m.conc[r.group] : 0.0f;
+          if (c != 0.0f)
+            glDrawElements(GL_TRIANGLES, r.count, GL_UNSIGNED_INT,
+                           reinterpret_cast<const void*>(static_cast<std::uintptr_t>(r.first) *
+                                                         sizeof(unsigned)));
+        }
+        continue;
+      }
+      glDrawElements(GL_TRIANGLES, g.count, GL_UNSIGNED_INT, nullptr);
     }
-    glDrawElements(GL_TRIANGLES, g.count, GL_UNSIGNED_INT, nullptr);
+  };
+  glEnable(GL_BLEND);
+  if (per_material) {
+    glBindFramebuffer(GL_FRAMEBUFFER, m.accum_fbo);
+    glClear(GL_COLOR_BUFFER_BIT);
+    draw(true, false);
+  } else {
+    // Static meshes (the body) are drawn once per pose and energy; each frame starts from them.
+    const bool any_static = std::any_of(m.meshes.begin(), m.meshes.end(),
+                                        [](const auto& g) { return g.is_static && g.visible; });
+    if (any_static) {
+      const CArmPose& sp = m.static_pose;
+      const bool same = m.static_valid && energy_ == m.static_energy &&
+                        sp.primary_deg == pose.primary_deg &&
+                        sp.secondary_deg == pose.secondary_deg && sp.sid == pose.sid &&
+                        sp.sod == pose.sod && sp.fov == pose.fov && sp.isocentre == pose.isocentre;
+      if (!same) {
+        glBindFramebuffer(GL_FRAMEBUFFER, m.static_fbo);
+        glClear(GL_COLOR_BUFFER_BIT);
+        draw(false, true);
+        m.static_pose = pose;
+        m.static_energy = energy_;
+        m.static_valid = true;
+      }
+      glBindFramebuffer(GL_READ_FRAMEBUFFER, m.static_fbo);
+      glBindFramebuffer(GL_DRAW_FRAMEBUFFER, m.reduce_fbo);
+      glBlitFramebuffer(0, 0, size_, size_, 0, 0, size_, size_, GL_COLOR_BUFFER_BIT, GL_NEAREST);
+      glBindFramebuffer(GL_FRAMEBUFFER, m.reduce_fbo);
+    } else {
+      glBindFramebuffer(GL_FRAMEBUFFER, m.reduce_fbo);
+      glClear(GL_COLOR_BUFFER_BIT);
+    }
+    draw(false, false);
   }
   glDisable(GL_BLEND);
 

@@ -85,7 +85,12 @@ void image_chain(std::span<const float> p, int size, const ImageChainSettings& s
 
   // Detected photons N ~ Poisson(I0 exp(-p)); for a mean above 10 the normal approximation
   // (mean and variance lambda) is used, exact Poisson sampling below.
-  std::vector<float> q(n * n, 0.0f);
+  // Scratch kept between frames: a fresh megabyte per frame costs page faults.
+  // The workers must use the caller's buffers, hence the plain references.
+  thread_local std::vector<float> q_store, t_store;
+  std::vector<float>& q = q_store;
+  std::vector<float>& t = t_store;
+  q.assign(n * n, 0.0f);
   const bool noise = s.dose > 0.0;
   const double i0 = noise ? s.dose : 1.0;
   // Rows and columns that can reach the collimated field (a pixel of blur margin).
@@ -132,7 +137,7 @@ void image_chain(std::span<const float> p, int size, const ImageChainSettings& s
   if (s.blur_sigma_px > 0.0) {
     const float w1 = static_cast<float>(std::exp(-0.5 / (s.blur_sigma_px * s.blur_sigma_px)));
     const float a = 1.0f / (1.0f + 2.0f * w1), b = w1 * a;
-    std::vector<float> t(n * n);
+    t.resize(n * n);
     for (std::size_t i = 0; i < n; ++i)
       for (std::size_t j = 0; j < n; ++j) {
         const std::size_t jm = j > 0 ? j - 1 : j, jp = j + 1 < n ? j + 1 : j;

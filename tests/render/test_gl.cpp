@@ -162,6 +162,29 @@ TEST_F(RenderGl, OverlappingObjectsAddPathLengths) {
     }
 }
 
+TEST_F(RenderGl, StaticMeshesCachedPerPoseGiveTheSameFrame) {
+  FluoroRenderer cached(kSize), direct(kSize);
+  for (FluoroRenderer* r : {&cached, &direct}) {
+    const int body = r->add_mesh({"body", sphere(Vec3::Zero(), 0.05), XrayMaterial::kSoftTissue,
+                                  1.0f, {}});
+    r->add_mesh({"wire", sphere(Vec3(0.01, 0, 0), 0.005), XrayMaterial::kSteel, 1.0f, {}});
+    if (r == &cached) r->set_static(body, true);
+  }
+  for (double primary : {0.0, 30.0, 30.0, -45.0}) {
+    CArmPose pose;
+    pose.primary_deg = primary;
+    std::vector<float> a, b;
+    cached.render(pose);
+    cached.read_line_integral(a);
+    direct.render(pose);
+    direct.read_line_integral(b);
+    ASSERT_EQ(a.size(), b.size());
+    double worst = 0.0;
+    for (std::size_t k = 0; k < a.size(); ++k) worst = std::max(worst, double(std::abs(a[k] - b[k])));
+    EXPECT_LT(worst, 1e-5) << "primary " << primary;
+  }
+}
+
 TEST_F(RenderGl, GroupConcentrationWeightsIodine) {
   CArmPose pose;
   XrayMesh x{"vessel", sphere(Vec3::Zero(), 0.01), XrayMaterial::kBlood, 1.0f, {}};
