@@ -1,0 +1,246 @@
+// vcsim render: fluoroscopy. C-arm geometry (DICOM angles), X-ray materials, closed meshes for
+// the patient and the instruments, a path-length renderer (OpenGL 3.3 core, kept out of this
+// header), the image chain (Beer-Lambert, quantum noise, log, window/level) and PNG output.
+// SI units (m, rad in code, degrees where the name says deg); patient coordinates are LPS
+// (+x patient left, +y posterior, +z head). Equations: docs/rendering.md.
+#pragma once
+
+#include "vcsim/anatomy.h"
+#include "vcsim/collision.h"
+#include "vcsim/core.h"
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <random>
+#include <span>
+#include <string>
+#include <vector>
+
+namespace vcsim {
+
+// ---------------------------------------------------------------------------------------------
+// C-arm geometry (GL-free, unit-tested)
+
+inline constexpr double kPrimaryLimitDeg = 120.0;   // |primary| at most (LAO/RAO)
+inline constexpr double kSecondaryLimitDeg = 60.0;  // |secondary| at most (CRA/CAU)
+
+struct CArmPose {
+  double primary_deg = 0.0;    // DICOM primary angle: + LAO, - RAO
+  double secondary_deg = 0.0;  // DICOM secondary angle: + CRA, - CAU
+  double sid = 1.200;          // m, source to detector
+  double sod = 0.780;          // m, source to isocentre
+  double fov = 0.200;          // m, side of the square detector field shown (zoom)
+  Vec3 isocentre = Vec3::Zero();  // m, LPS: the patient point the table pan puts at the isocentre
+
+  // Throws InputError(source, "primary_deg" | "secondary_deg" | "sid" | "sod" | "fov" |
+  // "isocentre", ...) for a value out of its range (angles above, sid in [0.8, 1.5] m,
+  // sod in [0.4 m, sid - 0.1 m], fov in [0.05, 0.5] m).
+  void validate(const std::string& source) const;
+};
+
+// The C-arm in patient coordinates for a pose.
+struct CArmFrame {
+  Vec3 source;           // m, focal spot
+  Vec3 detector_centre;  // m
+  Vec3 beam;             // unit, source -> detector (central ray)
+  Vec3 image_right;      // unit, the displayed image's +column direction on the detector
+  Vec3 image_up;         // unit, the displayed image's up direction (row 0 is the top)
+};
+CArmFrame carm_frame(const CArmPose& pose);
+
+using Mat4 = Eigen::Matrix4d;
+// Patient (LPS, m) -> eye coordinates: x = image_right, y = image_up, z = -beam, origin at the
+// source. The image is shown as seen from the detector, so this basis is a mirror (left-handed);
+// the renderer swaps its front-face winding accordingly.
+Mat4 carm_view_matrix(const CArmPose& pose);
+// Eye -> clip: a perspective frustum through the detector field (fov x fov at distance sid).
+Mat4 carm_projection_matrix(const CArmPose& pose, double near_m, double far_m);
+// Where the ray from the source through p meets the detector plane: m from the detector centre
+// along (image_right, image_up). p must lie in front of the source.
+Eigen::Vector2d project_to_detector(const CArmPose& pose, const Vec3& p);
+// Geometric magnification of a point: sid / (its distance from the source along the beam).
+double magnification(const CArmPose& pose, const Vec3& p);
+
+// ---------------------------------------------------------------------------------------------
+// X-ray materials
+
+// One path-length channel each (two RGBA float targets).
+enum class XrayMaterial : std::uint8_t {
+  kSoftTissue,  // the torso (every other part lies inside it)
+  kLung,
+  kBone,     // cortical bone; body parts use a cortical fill fraction (see body_part_mesh)
+  kBlood,    // vessel lumen
+  kIodine,   // contrast: lumen path length weighted by concentration (fraction of 350 mgI/ml)
+  kNitinol,  // guidewire cores
+  kSteel,    // 316L: catheter braid, wire cores
+  kPtIr,     // Pt90/Ir10 coils and marker bands
+};
+inline constexpr int kNumXrayMaterials = 8;
+std::string_view to_string(XrayMaterial m);
+
+enum class BeamEnergy : std::uint8_t { k60keV, k80keV };
+
+// Linear attenuation coefficient, 1/m (shared/reference/clinical.md, from NIST tables). Iodine is
+// the term added to blood by 350 mgI/ml contrast. Lung: soft tissue scaled by lung density
+// (0.26 g/cm^3, an estimate for an inflated lung).
+double attenuation_per_m(XrayMaterial m, BeamEnergy e);
+
+// Weights w_k (1/m) of the line integral p = sum_k w_k L_k. Every part lies inside the torso, so
+// each material counts by what it adds over the soft tissue it displaces (mu_k - mu_soft); the
+// torso itself counts mu_soft; iodine counts its own term (it adds to blood).
+std::array<float, kNumXrayMaterials> line_integral_weights(BeamEnergy e);
+
+// ---------------------------------------------------------------------------------------------
+// Closed meshes to draw
+
+// A closed, consistently wound surface with outward normals (counter-clockwise seen from
+// outside). The renderer accumulates path lengths by signed depth, exact only for closed surfaces.
+struct XrayMesh {
+  std::string name;
+  TriangleMesh mesh;
+  XrayMaterial material = XrayMaterial::kSoftTissue;
+  float fill = 1.0f;  // volume fraction of the material inside the surface
+  // Optional (nv): a group per vertex (e.g. the vessel segment); each group is closed by itself,
+  // and its path length also goes to the iodine channel weighted by the group's concentration.
+  std::vector<int> vertex_group;
+};
+
+// A closed tube around a polyline: `sides` vertices per ring, a ring per node with radius
+// radii[i] (or radii[0] for all), frames by parallel transport, flat caps at both ends.
+TriangleMesh tube_mesh(std::span<const Vec3> nodes, std::span<const double> radii, int sides = 8);
+
+// Closes every boundary loop of a consistently wound mesh with a fan from the loop's centroid,
+// keeping the winding. Returns the number of loops closed.
+int cap_boundary_loops(TriangleMesh& mesh);
+
+// The lumen as one closed surface per vessel segment (the triangles of each segment, boundary
+// loops at junctions and open ends capped by fans), wound outward, vertex_group = segment.
+// Material blood; the renderer adds the iodine channel from per-segment concentrations.
+XrayMesh lumen_xray_mesh(const Lumen& lumen);
+
+// A body part as an X-ray mesh: soft tissue and heart -> soft tissue, lung -> lung, bone ->
+// bone with fill `bone_fill` (a solid mesh stands for a cortical shell around marrow).
+inline constexpr float kBoneCorticalFill = 0.3f;  // estimate, docs/rendering.md
+XrayMesh body_part_mesh(const BodyPart& part, float bone_fill = kBoneCorticalFill);
+// The body context for X-ray: the torso as soft tissue, lungs, bones. Soft-tissue parts inside
+// the torso (heart, diaphragm) are left out: they add nothing over the torso they lie in.
+std::vector<XrayMesh> body_xray_meshes(const std::vector<BodyPart>& parts,
+                                       float bone_fill = kBoneCorticalFill);
+
+// An instrument seen by X-ray: a shaft along the nodes, a radiopaque distal length (a coil over
+// the shaft) and marker bands.
+struct InstrumentVisual {
+  std::string name = "instrument";
+  std::vector<Vec3> nodes;     // (n) proximal first, m
+  std::vector<double> radii;   // (n) or (1), m
+  XrayMaterial shaft = XrayMaterial::kNitinol;
+  float shaft_fill = 1.0f;
+  double radiopaque_length = 0.0;  // m from the distal end
+  XrayMaterial radiopaque = XrayMaterial::kPtIr;
+  float radiopaque_fill = 0.5f;  // coil winding fraction (estimate)
+  std::vector<double> marker_from_tip;  // m, centre of each marker band from the distal end
+  double marker_length = 1.0e-3;        // m
+  double marker_radius_factor = 1.15;   // band radius / shaft radius
+};
+std::vector<XrayMesh> instrument_xray_meshes(const InstrumentVisual& inst);
+
+// Instruments for a demonstration frame along the tree's routes: a 6F guiding catheter
+// (polymer with a steel braid) from the access to the left main ostium, and a 0.014" nitinol
+// guidewire from the access to the target with a 30 mm Pt/Ir coil tip.
+std::vector<InstrumentVisual> demo_instruments(const VesselTree& tree);
+
+// Per-segment contrast concentration: `c` for left_main and every segment below it (the left
+// coronary tree), 0 elsewhere.
+std::vector<float> left_coronary_contrast(const VesselTree& tree, float c);
+
+// ---------------------------------------------------------------------------------------------
+// GL: a headless context and the path-length renderer
+
+// An OpenGL 3.3 core context made current on this thread without any display or window: EGL on
+// a device (Mesa llvmpipe is fine) or the surfaceless platform. Throws std::runtime_error saying
+// what failed. A desktop app makes its own context (GLFW) and uses FluoroRenderer the same way.
+class HeadlessGlContext {
+ public:
+  HeadlessGlContext();
+  ~HeadlessGlContext();
+  HeadlessGlContext(const HeadlessGlContext&) = delete;
+  HeadlessGlContext& operator=(const HeadlessGlContext&) = delete;
+  const std::string& renderer() const { return renderer_; }  // GL_RENDERER string
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  std::string renderer_;
+};
+
+enum class FluoroOutput : std::uint8_t { kLineIntegral, kPathLengths };
+
+// Draws the path length of each material along every detector pixel's ray into float targets
+// and reduces them to the line integral. Needs a current GL 3.3 core context for its whole life.
+class FluoroRenderer {
+ public:
+  explicit FluoroRenderer(int size);  // size x size pixels; InputError for size outside [16, 4096]
+  ~FluoroRenderer();
+  FluoroRenderer(const FluoroRenderer&) = delete;
+  FluoroRenderer& operator=(const FluoroRenderer&) = delete;
+
+  // Uploads a mesh; returns its id. Meshes stay until replaced.
+  int add_mesh(const XrayMesh& mesh);
+  // Replaces a mesh's geometry (instruments every frame); material and groups kept.
+  void update_mesh(int id, const TriangleMesh& mesh);
+  void set_visible(int id, bool visible);
+  // A static mesh (e.g. the body context) is drawn once per pose and beam energy into a cached
+  // line integral that each kLineIntegral frame starts from; the others are drawn every frame.
+  void set_static(int id, bool is_static);
+  // Concentration per group (e.g. per segment), fraction of 350 mgI/ml; at most 256 groups.
+  void set_group_concentration(std::span<const float> c);
+  void set_beam_energy(BeamEnergy e) { energy_ = e; }
+
+  // Draws every visible mesh for the pose. kLineIntegral (frames) accumulates p = sum_k w_k L_k
+  // directly into one float target; kPathLengths accumulates one channel per material, then
+  // reduces them to p (inspection, tests): the same p either way.
+  void render(const CArmPose& pose, FluoroOutput output = FluoroOutput::kLineIntegral);
+  // After render(): (size * size) line integral p = sum_k w_k L_k, row 0 at the image top.
+  void read_line_integral(std::vector<float>& out) const;
+  // After render(kPathLengths): (size * size * kNumXrayMaterials) path lengths in m,
+  // pixel-major, row 0 at the top.
+  void read_path_lengths(std::vector<float>& out) const;
+  int size() const { return size_; }
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  int size_ = 0;
+  BeamEnergy energy_ = BeamEnergy::k60keV;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Image chain (CPU, after readback)
+
+struct ImageChainSettings {
+  double dose = 1e4;  // photons per pixel before the patient (I0); 0 = no quantum noise
+  std::uint64_t seed = 1;
+  // Window on the line integral p = -ln(I / I0): p <= level - window/2 is white, above
+  // level + window/2 black. window <= 0: automatic, from the noise-free frame (percentiles inside
+  // the collimated field), like a system's automatic brightness control.
+  double window = 0.0;
+  double level = 0.0;
+  double gamma = 1.0;         // display gamma applied to the grey value
+  double blur_sigma_px = 0.7; // correlation blur (Gaussian, 3x3 kernel); 0 = none
+  double vignetting = 0.25;   // brightness loss at the field edge (fraction)
+  double collimation = 0.97;  // radius of the circular field / half the image side; >= 1.42 = none
+
+  void validate(const std::string& source) const;  // InputError naming the field
+};
+
+// One frame: quantum noise on I = I0 exp(-p), blur, log, window/level, gamma, vignetting,
+// collimation -> 8-bit grey (size * size, row 0 top), dark where attenuation is high.
+void image_chain(std::span<const float> line_integral, int size, const ImageChainSettings& s,
+                 std::vector<std::uint8_t>& out);
+
+// Writes an 8-bit grey PNG; InputError("png", path, ...) if the file cannot be written.
+void write_png_grey(const std::string& path, std::span<const std::uint8_t> pixels, int width,
+                    int height);
+
+}  // namespace vcsim
