@@ -19,7 +19,7 @@ namespace {
 struct RenderOptions {
   std::string out;
   int size = 512;
-  double primary_deg = 40.0;     // spider view: LAO 40 / CAU 30
+  double primary_deg = 40.0;  // spider view: LAO 40 / CAU 30
   double secondary_deg = -30.0;
   double fov_mm = 200.0;
   double dose = 1e4;
@@ -49,8 +49,7 @@ CArmPose checked_pose(const RenderOptions& o, const std::string& cmd) {
     throw InputError(cmd, "--contrast", "expected a fraction of 350 mgI/ml in [0, 1]");
   if (o.energy_kev != 60 && o.energy_kev != 80)
     throw InputError(cmd, "--energy-kev", "expected 60 or 80");
-  if (o.frames < 1 || o.frames > 10000)
-    throw InputError(cmd, "--frames", "expected 1 to 10000");
+  if (o.frames < 1 || o.frames > 10000) throw InputError(cmd, "--frames", "expected 1 to 10000");
   CArmPose pose;
   pose.primary_deg = o.primary_deg;
   pose.secondary_deg = o.secondary_deg;
@@ -97,7 +96,8 @@ void apply(const RenderOptions& o, FluoroRenderer& r, CArmPose& pose, const Scen
         sum += q;
         ++count;
       }
-  pose.isocentre = count > 0 ? Vec3(sum / count) : (s.tree.heart ? s.tree.heart->centre : Vec3::Zero());
+  pose.isocentre =
+      count > 0 ? Vec3(sum / count) : (s.tree.heart ? s.tree.heart->centre : Vec3::Zero());
   r.set_beam_energy(o.energy_kev == 80 ? BeamEnergy::k80keV : BeamEnergy::k60keV);
   chain.dose = o.dose;
   chain.seed = o.seed;
@@ -121,8 +121,8 @@ int cmd_render(const RenderOptions& o) {
   image_chain(p, o.size, chain, img);
   write_png_grey(o.out, img, o.size, o.size);
   std::cout << "render: wrote " << o.out << " (" << o.size << "x" << o.size << ", primary "
-            << o.primary_deg << " deg, secondary " << o.secondary_deg << " deg, "
-            << gl.renderer() << ")\n";
+            << o.primary_deg << " deg, secondary " << o.secondary_deg << " deg, " << gl.renderer()
+            << ")\n";
   return 0;
 }
 

@@ -26,11 +26,11 @@ inline constexpr double kPrimaryLimitDeg = 120.0;   // |primary| at most (LAO/RA
 inline constexpr double kSecondaryLimitDeg = 60.0;  // |secondary| at most (CRA/CAU)
 
 struct CArmPose {
-  double primary_deg = 0.0;    // DICOM primary angle: + LAO, - RAO
-  double secondary_deg = 0.0;  // DICOM secondary angle: + CRA, - CAU
-  double sid = 1.200;          // m, source to detector
-  double sod = 0.780;          // m, source to isocentre
-  double fov = 0.200;          // m, side of the square detector field shown (zoom)
+  double primary_deg = 0.0;       // DICOM primary angle: + LAO, - RAO
+  double secondary_deg = 0.0;     // DICOM secondary angle: + CRA, - CAU
+  double sid = 1.200;             // m, source to detector
+  double sod = 0.780;             // m, source to isocentre
+  double fov = 0.200;             // m, side of the square detector field shown (zoom)
   Vec3 isocentre = Vec3::Zero();  // m, LPS: the patient point the table pan puts at the isocentre
 
   // Throws InputError(source, "primary_deg" | "secondary_deg" | "sid" | "sod" | "fov" |
@@ -132,13 +132,13 @@ std::vector<XrayMesh> body_xray_meshes(const std::vector<BodyPart>& parts,
 // the shaft) and marker bands.
 struct InstrumentVisual {
   std::string name = "instrument";
-  std::vector<Vec3> nodes;     // (n) proximal first, m
-  std::vector<double> radii;   // (n) or (1), m
+  std::vector<Vec3> nodes;    // (n) proximal first, m
+  std::vector<double> radii;  // (n) or (1), m
   XrayMaterial shaft = XrayMaterial::kNitinol;
   float shaft_fill = 1.0f;
   double radiopaque_length = 0.0;  // m from the distal end
   XrayMaterial radiopaque = XrayMaterial::kPtIr;
-  float radiopaque_fill = 0.5f;  // coil winding fraction (estimate)
+  float radiopaque_fill = 0.5f;         // coil winding fraction (estimate)
   std::vector<double> marker_from_tip;  // m, centre of each marker band from the distal end
   double marker_length = 1.0e-3;        // m
   double marker_radius_factor = 1.15;   // band radius / shaft radius
@@ -226,10 +226,10 @@ struct ImageChainSettings {
   // the collimated field), like a system's automatic brightness control.
   double window = 0.0;
   double level = 0.0;
-  double gamma = 1.0;         // display gamma applied to the grey value
-  double blur_sigma_px = 0.7; // correlation blur (Gaussian, 3x3 kernel); 0 = none
-  double vignetting = 0.25;   // brightness loss at the field edge (fraction)
-  double collimation = 0.97;  // radius of the circular field / half the image side; >= 1.42 = none
+  double gamma = 1.0;          // display gamma applied to the grey value
+  double blur_sigma_px = 0.7;  // correlation blur (Gaussian, 3x3 kernel); 0 = none
+  double vignetting = 0.25;    // brightness loss at the field edge (fraction)
+  double collimation = 0.97;   // radius of the circular field / half the image side; >= 1.42 = none
 
   void validate(const std::string& source) const;  // InputError naming the field
 };

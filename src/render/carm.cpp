@@ -22,8 +22,8 @@ void require_between(double v, double lo, double hi, const std::string& source,
 void CArmPose::validate(const std::string& source) const {
   require_between(primary_deg, -kPrimaryLimitDeg, kPrimaryLimitDeg, source, "primary_deg",
                   "deg (+ LAO, - RAO)");
-  require_between(secondary_deg, -kSecondaryLimitDeg, kSecondaryLimitDeg, source,
-                  "secondary_deg", "deg (+ CRA, - CAU)");
+  require_between(secondary_deg, -kSecondaryLimitDeg, kSecondaryLimitDeg, source, "secondary_deg",
+                  "deg (+ CRA, - CAU)");
   require_between(sid, 0.8, 1.5, source, "sid", "m");
   require_between(sod, 0.4, sid - 0.1, source, "sod", "m (and at least 0.1 m below sid)");
   require_between(fov, 0.05, 0.5, source, "fov", "m");

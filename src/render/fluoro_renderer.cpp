@@ -179,8 +179,8 @@ struct FluoroRenderer::Impl {
       for (int k = 0; k < 3; ++k) idx[3 * t + k] = static_cast<unsigned>(m.triangles[t][k]);
     glBindVertexArray(g.vao);
     glBindBuffer(GL_ARRAY_BUFFER, g.pos);
-    glBufferData(GL_ARRAY_BUFFER, static_cast<GLsizeiptr>(pos.size() * sizeof(float)),
-                 pos.data(), GL_DYNAMIC_DRAW);
+    glBufferData(GL_ARRAY_BUFFER, static_cast<GLsizeiptr>(pos.size() * sizeof(float)), pos.data(),
+                 GL_DYNAMIC_DRAW);
     glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 0, nullptr);
     glEnableVertexAttribArray(0);
     if (groups) {
@@ -207,7 +207,8 @@ FluoroRenderer::FluoroRenderer(int size) : impl_(std::make_unique<Impl>()), size
     throw InputError("render", "size", "expected 16 to 4096 pixels, got " + std::to_string(size));
   Impl& m = *impl_;
   m.accum_prog = link(kAccumVs, std::string("#version 330 core\n") + kAccumFs);
-  m.line_prog = link(kAccumVs, std::string("#version 330 core\n#define LINE_INTEGRAL\n") + kAccumFs);
+  m.line_prog =
+      link(kAccumVs, std::string("#version 330 core\n#define LINE_INTEGRAL\n") + kAccumFs);
   m.reduce_prog = link(kReduceVs, kReduceFs);
   auto loc = [](GLuint p, const char* n) { return glGetUniformLocation(p, n); };
   for (int k = 0; k < 2; ++k) {

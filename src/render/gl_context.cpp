@@ -61,9 +61,13 @@ EGLContext try_display(EGLDisplay dpy, std::string& why) {
       return EGL_NO_CONTEXT;
     }
   }
-  const EGLint ctx_attribs[] = {EGL_CONTEXT_MAJOR_VERSION, 3, EGL_CONTEXT_MINOR_VERSION, 3,
+  const EGLint ctx_attribs[] = {EGL_CONTEXT_MAJOR_VERSION,
+                                3,
+                                EGL_CONTEXT_MINOR_VERSION,
+                                3,
                                 EGL_CONTEXT_OPENGL_PROFILE_MASK,
-                                EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT, EGL_NONE};
+                                EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT,
+                                EGL_NONE};
   EGLContext ctx = eglCreateContext(dpy, config, EGL_NO_CONTEXT, ctx_attribs);
   if (ctx == EGL_NO_CONTEXT) {
     why = "eglCreateContext for OpenGL 3.3 core failed (" + egl_error_text() + ")";
@@ -101,7 +105,8 @@ HeadlessGlContext::HeadlessGlContext() : impl_(std::make_unique<Impl>()) {
   auto query_devices =
       reinterpret_cast<PFNEGLQUERYDEVICESEXTPROC>(eglGetProcAddress("eglQueryDevicesEXT"));
   bool ok = false;
-  if (get_platform_display && query_devices && (cext.find("EGL_EXT_platform_device") != std::string::npos)) {
+  if (get_platform_display && query_devices &&
+      (cext.find("EGL_EXT_platform_device") != std::string::npos)) {
     EGLDeviceEXT devices[16];
     EGLint num = 0;
     if (query_devices(16, devices, &num)) {
@@ -114,7 +119,8 @@ HeadlessGlContext::HeadlessGlContext() : impl_(std::make_unique<Impl>()) {
   } else {
     log += "; no EGL_EXT_platform_device";
   }
-  if (!ok && get_platform_display && (cext.find("EGL_MESA_platform_surfaceless") != std::string::npos))
+  if (!ok && get_platform_display &&
+      (cext.find("EGL_MESA_platform_surfaceless") != std::string::npos))
     ok = attempt(get_platform_display(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, nullptr),
                  "surfaceless platform");
   if (!ok)

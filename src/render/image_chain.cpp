@@ -30,8 +30,8 @@ namespace {
 // and it costs a fraction of Box-Muller's log, sqrt and sine.
 inline float normal_approx(std::mt19937_64& rng) {
   const std::uint64_t x = rng();
-  const auto sum = static_cast<float>((x & 0xffffu) + ((x >> 16) & 0xffffu) +
-                                      ((x >> 32) & 0xffffu) + (x >> 48));
+  const auto sum =
+      static_cast<float>((x & 0xffffu) + ((x >> 16) & 0xffffu) + ((x >> 32) & 0xffffu) + (x >> 48));
   constexpr float kScale = 1.7320508f / 65536.0f;  // sqrt(3) / 2^16
   return (sum - 2.0f * 65535.0f) * kScale;
 }

@@ -11,14 +11,22 @@ namespace vcsim {
 
 std::string_view to_string(XrayMaterial m) {
   switch (m) {
-    case XrayMaterial::kSoftTissue: return "soft_tissue";
-    case XrayMaterial::kLung: return "lung";
-    case XrayMaterial::kBone: return "bone";
-    case XrayMaterial::kBlood: return "blood";
-    case XrayMaterial::kIodine: return "iodine";
-    case XrayMaterial::kNitinol: return "nitinol";
-    case XrayMaterial::kSteel: return "steel";
-    case XrayMaterial::kPtIr: return "pt_ir";
+    case XrayMaterial::kSoftTissue:
+      return "soft_tissue";
+    case XrayMaterial::kLung:
+      return "lung";
+    case XrayMaterial::kBone:
+      return "bone";
+    case XrayMaterial::kBlood:
+      return "blood";
+    case XrayMaterial::kIodine:
+      return "iodine";
+    case XrayMaterial::kNitinol:
+      return "nitinol";
+    case XrayMaterial::kSteel:
+      return "steel";
+    case XrayMaterial::kPtIr:
+      return "pt_ir";
   }
   return "unknown";
 }
@@ -29,14 +37,28 @@ double attenuation_per_m(XrayMaterial m, BeamEnergy e) {
   double per_cm = 0.0;
   switch (m) {
     case XrayMaterial::kSoftTissue:
-    case XrayMaterial::kBlood: per_cm = e60 ? 0.22 : 0.19; break;
+    case XrayMaterial::kBlood:
+      per_cm = e60 ? 0.22 : 0.19;
+      break;
     // Inflated lung: soft tissue scaled by density 0.26 / 1.06 g/cm^3 (estimate).
-    case XrayMaterial::kLung: per_cm = (e60 ? 0.22 : 0.19) * 0.26 / 1.06; break;
-    case XrayMaterial::kBone: per_cm = e60 ? 0.60 : 0.43; break;
-    case XrayMaterial::kIodine: per_cm = e60 ? 2.65 : 1.23; break;  // 350 mgI/ml, over blood
-    case XrayMaterial::kNitinol: per_cm = e60 ? 7.6 : 3.8; break;
-    case XrayMaterial::kSteel: per_cm = e60 ? 10.1 : 5.0; break;
-    case XrayMaterial::kPtIr: per_cm = e60 ? 93.0 : 187.0; break;
+    case XrayMaterial::kLung:
+      per_cm = (e60 ? 0.22 : 0.19) * 0.26 / 1.06;
+      break;
+    case XrayMaterial::kBone:
+      per_cm = e60 ? 0.60 : 0.43;
+      break;
+    case XrayMaterial::kIodine:
+      per_cm = e60 ? 2.65 : 1.23;
+      break;  // 350 mgI/ml, over blood
+    case XrayMaterial::kNitinol:
+      per_cm = e60 ? 7.6 : 3.8;
+      break;
+    case XrayMaterial::kSteel:
+      per_cm = e60 ? 10.1 : 5.0;
+      break;
+    case XrayMaterial::kPtIr:
+      per_cm = e60 ? 93.0 : 187.0;
+      break;
   }
   return per_cm * 100.0;
 }
@@ -88,7 +110,8 @@ TriangleMesh tube_mesh(std::span<const Vec3> nodes_in, std::span<const double> r
     }
   }
   auto at = [sides](int i, int j) { return i * sides + (j % sides); };
-  // (n, b, t) is right-handed, so rings run counter-clockwise seen from +t: these windings face out.
+  // (n, b, t) is right-handed, so rings run counter-clockwise seen from +t: these windings face
+  // out.
   for (int i = 0; i + 1 < n; ++i)
     for (int j = 0; j < sides; ++j) {
       m.triangles.push_back({at(i, j), at(i, j + 1), at(i + 1, j + 1)});
@@ -200,13 +223,19 @@ XrayMesh body_part_mesh(const BodyPart& part, float bone_fill) {
   x.mesh = part.mesh;
   switch (part.material) {
     case Material::kSoftTissue:
-    case Material::kHeart: x.material = XrayMaterial::kSoftTissue; break;
-    case Material::kLung: x.material = XrayMaterial::kLung; break;
+    case Material::kHeart:
+      x.material = XrayMaterial::kSoftTissue;
+      break;
+    case Material::kLung:
+      x.material = XrayMaterial::kLung;
+      break;
     case Material::kBone:
       x.material = XrayMaterial::kBone;
       x.fill = bone_fill;
       break;
-    case Material::kBlood: x.material = XrayMaterial::kBlood; break;
+    case Material::kBlood:
+      x.material = XrayMaterial::kBlood;
+      break;
   }
   return x;
 }
@@ -214,10 +243,9 @@ XrayMesh body_part_mesh(const BodyPart& part, float bone_fill) {
 std::vector<XrayMesh> body_xray_meshes(const std::vector<BodyPart>& parts, float bone_fill) {
   std::vector<XrayMesh> out;
   for (const BodyPart& p : parts) {
-    const bool embedded_soft =
-        (p.material == Material::kSoftTissue || p.material == Material::kHeart ||
-         p.material == Material::kBlood) &&
-        p.name != "torso";
+    const bool embedded_soft = (p.material == Material::kSoftTissue ||
+                                p.material == Material::kHeart || p.material == Material::kBlood) &&
+                               p.name != "torso";
     if (!embedded_soft) out.push_back(body_part_mesh(p, bone_fill));
   }
   return out;
@@ -257,15 +285,15 @@ std::vector<XrayMesh> instrument_xray_meshes(const InstrumentVisual& inst) {
   double length = 0.0;
   for (std::size_t i = 0; i + 1 < inst.nodes.size(); ++i)
     length += (inst.nodes[i + 1] - inst.nodes[i]).norm();
-  out.push_back({inst.name + "_shaft", tube_mesh(inst.nodes, inst.radii), inst.shaft,
-                 inst.shaft_fill, {}});
+  out.push_back(
+      {inst.name + "_shaft", tube_mesh(inst.nodes, inst.radii), inst.shaft, inst.shaft_fill, {}});
   std::vector<Vec3> q;
   std::vector<double> rq;
   if (inst.radiopaque_length > 0.0) {
-    sub_polyline(inst.nodes, inst.radii, std::max(0.0, length - inst.radiopaque_length), length,
-                 q, rq);
-    out.push_back({inst.name + "_radiopaque", tube_mesh(q, rq), inst.radiopaque,
-                   inst.radiopaque_fill, {}});
+    sub_polyline(inst.nodes, inst.radii, std::max(0.0, length - inst.radiopaque_length), length, q,
+                 rq);
+    out.push_back(
+        {inst.name + "_radiopaque", tube_mesh(q, rq), inst.radiopaque, inst.radiopaque_fill, {}});
   }
   for (double d : inst.marker_from_tip) {
     const double c = length - d;

@@ -39,8 +39,8 @@ TriangleMesh sphere(const Vec3& c, double r, int rings = 96, int sectors = 192) 
     const double th = kPi * i / rings - 0.5 * kPi;
     for (int j = 0; j < sectors; ++j) {
       const double ph = 2 * kPi * j / sectors;
-      m.vertices.push_back(c + r * Vec3(std::cos(th) * std::cos(ph), std::cos(th) * std::sin(ph),
-                                        std::sin(th)));
+      m.vertices.push_back(
+          c + r * Vec3(std::cos(th) * std::cos(ph), std::cos(th) * std::sin(ph), std::sin(th)));
     }
   }
   m.vertices.push_back(c + Vec3(0, 0, r));
@@ -52,7 +52,8 @@ TriangleMesh sphere(const Vec3& c, double r, int rings = 96, int sectors = 192) 
       m.triangles.push_back({at(i, j), at(i, j + 1), at(i + 1, j + 1)});
       m.triangles.push_back({at(i, j), at(i + 1, j + 1), at(i + 1, j)});
     }
-  for (int j = 0; j < sectors; ++j) m.triangles.push_back({top, at(rings - 1, j), at(rings - 1, j + 1)});
+  for (int j = 0; j < sectors; ++j)
+    m.triangles.push_back({top, at(rings - 1, j), at(rings - 1, j + 1)});
   m.recompute_normals();
   return m;
 }
@@ -165,8 +166,8 @@ TEST_F(RenderGl, OverlappingObjectsAddPathLengths) {
 TEST_F(RenderGl, StaticMeshesCachedPerPoseGiveTheSameFrame) {
   FluoroRenderer cached(kSize), direct(kSize);
   for (FluoroRenderer* r : {&cached, &direct}) {
-    const int body = r->add_mesh({"body", sphere(Vec3::Zero(), 0.05), XrayMaterial::kSoftTissue,
-                                  1.0f, {}});
+    const int body =
+        r->add_mesh({"body", sphere(Vec3::Zero(), 0.05), XrayMaterial::kSoftTissue, 1.0f, {}});
     r->add_mesh({"wire", sphere(Vec3(0.01, 0, 0), 0.005), XrayMaterial::kSteel, 1.0f, {}});
     if (r == &cached) r->set_static(body, true);
   }
@@ -180,7 +181,8 @@ TEST_F(RenderGl, StaticMeshesCachedPerPoseGiveTheSameFrame) {
     direct.read_line_integral(b);
     ASSERT_EQ(a.size(), b.size());
     double worst = 0.0;
-    for (std::size_t k = 0; k < a.size(); ++k) worst = std::max(worst, double(std::abs(a[k] - b[k])));
+    for (std::size_t k = 0; k < a.size(); ++k)
+      worst = std::max(worst, double(std::abs(a[k] - b[k])));
     EXPECT_LT(worst, 1e-5) << "primary " << primary;
   }
 }
