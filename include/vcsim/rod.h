@@ -197,6 +197,13 @@ void rod_end_step(const RodModel& model, const RodSettings& settings, RodState& 
 // (a conservative estimate; see docs/physics.md).
 double estimate_stable_dt(const RodModel& model, const RodSettings& settings);
 
+// Selective mass scaling for a quasi-static explicit step of `dt` (physics.md 5.4): caps the
+// parallel-constraint penalty at `kp_ratio` E I / l^2 per edge (still far stiffer than bending
+// at the segment scale), then raises each node's mass and each frame's inertia only as far as
+// its own stiffness needs (2 k dt^2), so that the fine tip does not make the whole rod heavy.
+// Afterwards estimate_stable_dt(model, {}) >= dt. Returns the added mass (kg).
+double scale_for_time_step(RodModel& model, double dt, double kp_ratio = 20.0);
+
 // Diagnostics.
 double centreline_length(const RodState& state);
 double max_stretch(const RodModel& model, const RodState& state);  // max |len/rest - 1|

@@ -342,4 +342,34 @@ double estimate_stable_dt(const RodModel& md, const RodSettings& s) {
   return dt;
 }
 
+double scale_for_time_step(RodModel& md, double dt, double kp_ratio) {
+  for (int j = 0; j < md.m; ++j) {
+    const double l = md.rest_length[j];
+    md.kp[j] = std::min(md.kp[j], kp_ratio * md.youngs[j] * md.bend_inertia[j] / (l * l));
+  }
+  // The same per-node and per-frame stiffness bounds as estimate_stable_dt, with w dt <= 1.
+  const double dt2 = dt * dt * 1.0001;
+  double added = 0.0;
+  for (int i = 0; i < md.n; ++i) {
+    if (md.inv_mass[i] == 0.0) continue;
+    double k = 0.0;
+    for (int j : {i - 1, i})
+      if (j >= 0 && j < md.m) k += md.kp[j] / md.rest_length[j];
+    const double need = 2.0 * k * dt2;
+    if (need > md.node_mass[i]) {
+      added += need - md.node_mass[i];
+      md.node_mass[i] = need;
+      md.inv_mass[i] = 1.0 / need;
+    }
+  }
+  for (int j = 0; j < md.m; ++j) {
+    Vec3 k(md.kp[j] * md.rest_length[j], md.kp[j] * md.rest_length[j], 0.0);
+    for (int v : {j, j + 1})
+      if (md.vertex_active[v]) k += md.vertex_stiffness[v] / md.vertex_length[v];
+    for (int a = 0; a < 3; ++a) md.inertia[j][a] = std::max(md.inertia[j][a], 2.0 * k[a] * dt2);
+    md.inv_inertia[j] = md.inertia[j].cwiseInverse();
+  }
+  return added;
+}
+
 }  // namespace vcsim
