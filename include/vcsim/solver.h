@@ -93,6 +93,9 @@ struct Instrument {
   ContactMaterial contact;
   DriveState drive;
   bool driven = true;  // false: a free rod (no sheath), e.g. lying on a surface
+  // Entirely outside the body and not being inserted: the step skips it (nothing of it moves;
+  // the owner sets and clears it, e.g. a wire waiting on the table).
+  bool parked = false;
   // Contact scratch (sized once).
   std::vector<SphereContact> hits;      // (n)
   std::vector<Vec3> query_centre;       // (n) where each node was last queried

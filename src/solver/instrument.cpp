@@ -380,18 +380,28 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
 
   // 1. inputs: the drive holds the outside part
   for (std::size_t k = 0; k < insts.size(); ++k) {
+    if (insts[k].parked) continue;
     rod_begin_step(insts[k].model, insts[k].ws);
     if (insts[k].driven) drive_begin(insts[k], cmds[k], rs.dt);
   }
   const double t1 = tick();
   // 2. forces, 3. velocities
-  for (Instrument& in : insts) rod_forces(in.model, rs, in.state, in.ws);
+  for (Instrument& in : insts)
+    if (!in.parked) rod_forces(in.model, rs, in.state, in.ws);
   const double t2 = tick();
-  for (Instrument& in : insts) rod_integrate_velocities(in.model, rs, in.state, in.ws);
+  for (Instrument& in : insts)
+    if (!in.parked) rod_integrate_velocities(in.model, rs, in.state, in.ws);
   const double t3 = tick();
   // 4. collision detection: coupling first (sheathed wire nodes skip the wall)
-  for (Coupling& c : couplings) detect_coupling(c, insts[c.inner], insts[c.outer], set);
+  for (Coupling& c : couplings) {
+    if (insts[c.inner].parked || insts[c.outer].parked) {
+      c.contacts.clear();
+      continue;
+    }
+    detect_coupling(c, insts[c.inner], insts[c.outer], set);
+  }
   for (Instrument& in : insts) {
+    if (in.parked) continue;
     if (collide) {
       detect_contacts(in, *wall, set, &p);
     } else {
@@ -404,13 +414,16 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   for (int it = 0; it < rs.iterations; ++it) {
     const double a = tick();
     if (rs.distance != DistanceMethod::kPenalty) {
-      for (Instrument& in : insts) rod_distance_iteration(in.model, rs, in.state, in.ws);
+      for (Instrument& in : insts)
+        if (!in.parked) rod_distance_iteration(in.model, rs, in.state, in.ws);
     }
     const double b = tick();
     // Walls first, coupling last: the wire must end each iteration inside the catheter, and
     // the catheter's wall contacts would otherwise move it away from the wire.
-    for (Instrument& in : insts) solve_contacts(in, set);
-    for (Coupling& c : couplings) solve_coupling(c, insts[c.inner], insts[c.outer], set);
+    for (Instrument& in : insts)
+      if (!in.parked) solve_contacts(in, set);
+    for (Coupling& c : couplings)
+      if (!c.contacts.empty()) solve_coupling(c, insts[c.inner], insts[c.outer], set);
     if (prof) {
       t_dist += b - a;
       t_cont += tick() - b;
@@ -419,6 +432,7 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   const double t5 = tick();
   // 6. positions
   for (Instrument& in : insts) {
+    if (in.parked) continue;
     rod_integrate_positions(in.model, rs, in.state, in.ws);
     remove_contact_bias(in, set);
     if (in.driven) {
