@@ -8,6 +8,8 @@
 #include "vcsim/anatomy.h"
 #include "vcsim/collision.h"
 #include "vcsim/core.h"
+#include "vcsim/instruments.h"
+#include "vcsim/sim.h"
 
 #include <array>
 #include <cstdint>
@@ -189,6 +191,8 @@ class FluoroRenderer {
   int add_mesh(const XrayMesh& mesh);
   // Replaces a mesh's geometry (instruments every frame); material and groups kept.
   void update_mesh(int id, const TriangleMesh& mesh);
+  // Moves a mesh's vertices (same count and topology; grouped meshes too, e.g. a beating lumen).
+  void update_vertices(int id, std::span<const Vec3> vertices);
   void set_visible(int id, bool visible);
   // A static mesh (e.g. the body context) is drawn once per pose and beam energy into a cached
   // line integral that each kLineIntegral frame starts from; the others are drawn every frame.
@@ -242,5 +246,35 @@ void image_chain(std::span<const float> line_integral, int size, const ImageChai
 // Writes an 8-bit grey PNG; InputError("png", path, ...) if the file cannot be written.
 void write_png_grey(const std::string& path, std::span<const std::uint8_t> pixels, int width,
                     int height);
+
+// ---------------------------------------------------------------------------------------------
+// A simulation seen by fluoroscopy
+
+// How a catalogue instrument shows: a wire's core of its material with its radiopaque coil, a
+// catheter's braid (a small steel fraction of the wall) with its marker bands.
+InstrumentVisual instrument_visual(const InstrumentSpec& spec, const std::string& name);
+
+// The simulator's scene uploaded once (lumen with per-segment contrast, body context,
+// instruments); each frame moves the lumen with the heart, re-meshes the inserted part of every
+// instrument, draws and runs the image chain. Needs a current GL context for its whole life.
+class SimFluoroscopy {
+ public:
+  SimFluoroscopy(const Simulator& sim, int size, BeamEnergy energy = BeamEnergy::k60keV);
+  void frame(const Simulator& sim, const CArmPose& pose, const ImageChainSettings& chain,
+             std::vector<std::uint8_t>& out);
+  FluoroRenderer& renderer() { return renderer_; }
+
+ private:
+  struct Slots {
+    InstrumentVisual visual;
+    int shaft = -1, radiopaque = -1;
+    std::vector<int> markers;
+  };
+  FluoroRenderer renderer_;
+  int lumen_ = -1;
+  std::vector<Vec3> lumen_rest_, lumen_now_;
+  std::vector<Slots> instruments_;
+  std::vector<float> line_integral_;
+};
 
 }  // namespace vcsim

@@ -138,6 +138,7 @@ void check_framebuffer(const char* what) {
 }  // namespace
 
 struct FluoroRenderer::Impl {
+  std::vector<float> scratch;  // vertex upload buffer
   struct GpuMesh {
     GLuint vao = 0, pos = 0, group = 0, ebo = 0;
     GLsizei count = 0;
@@ -305,6 +306,24 @@ void FluoroRenderer::update_mesh(int id, const TriangleMesh& mesh) {
   if (g.is_static) impl_->static_valid = false;
   if (g.groups) throw std::invalid_argument("render: update_mesh on a grouped mesh");
   impl_->upload(g, mesh, nullptr);
+}
+
+void FluoroRenderer::update_vertices(int id, std::span<const Vec3> vertices) {
+  auto& g = impl_->meshes.at(static_cast<std::size_t>(id));
+  if (g.is_static) impl_->static_valid = false;
+  std::vector<float>& pos = impl_->scratch;
+  pos.resize(3 * vertices.size());
+  for (std::size_t i = 0; i < vertices.size(); ++i)
+    for (int k = 0; k < 3; ++k) pos[3 * i + k] = static_cast<float>(vertices[i][k]);
+  GLint bytes = 0;
+  glBindBuffer(GL_ARRAY_BUFFER, g.pos);
+  glGetBufferParameteriv(GL_ARRAY_BUFFER, GL_BUFFER_SIZE, &bytes);
+  if (static_cast<std::size_t>(bytes) != pos.size() * sizeof(float)) {
+    glBindBuffer(GL_ARRAY_BUFFER, 0);
+    throw std::invalid_argument("render: update_vertices with a different vertex count");
+  }
+  glBufferSubData(GL_ARRAY_BUFFER, 0, bytes, pos.data());
+  glBindBuffer(GL_ARRAY_BUFFER, 0);
 }
 
 void FluoroRenderer::set_visible(int id, bool visible) {

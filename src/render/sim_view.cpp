@@ -1,0 +1,105 @@
+// A simulation seen by fluoroscopy: the simulator's anatomy, contrast and instruments drawn by
+// the path-length renderer (docs/rendering.md).
+#include <algorithm>
+
+#include "vcsim/render.h"
+
+namespace vcsim {
+
+InstrumentVisual instrument_visual(const InstrumentSpec& spec, const std::string& name) {
+  InstrumentVisual v;
+  v.name = name;
+  v.radii = {0.5 * spec.outer_diameter};
+  const InstrumentRadiopacity& r = spec.radiopacity;
+  // The tube is drawn solid, so the catalogue's attenuation (of the shaft as a whole, or of the
+  // coil) becomes a fill fraction of the renderer's material with the same line integral.
+  auto fill = [](double mu, XrayMaterial m) {
+    return mu > 0.0
+               ? static_cast<float>(std::min(1.0, mu / attenuation_per_m(m, BeamEnergy::k60keV)))
+               : 1.0f;
+  };
+  v.shaft = spec.kind == InstrumentKind::kCatheter || r.material != "nitinol"
+                ? XrayMaterial::kSteel  // a catheter's braid and filled polymer, or a steel core
+                : XrayMaterial::kNitinol;
+  v.shaft_fill = fill(r.attenuation_60kev, v.shaft);
+  v.radiopaque_length = r.coil_length;
+  v.radiopaque = XrayMaterial::kPtIr;
+  v.radiopaque_fill = fill(r.coil_attenuation_60kev, XrayMaterial::kPtIr);
+  v.marker_from_tip = r.markers;
+  return v;
+}
+
+namespace {
+
+TriangleMesh placeholder_tube() {
+  const std::vector<Vec3> p = {Vec3::Zero(), Vec3(0, 0, 1e-3)};
+  const std::vector<double> r = {1e-4};
+  return tube_mesh(p, r);
+}
+
+}  // namespace
+
+SimFluoroscopy::SimFluoroscopy(const Simulator& sim, int size, BeamEnergy energy)
+    : renderer_(size) {
+  renderer_.set_beam_energy(energy);
+  const XrayMesh lumen = lumen_xray_mesh(sim.lumen());
+  lumen_rest_ = lumen.mesh.vertices;
+  lumen_ = renderer_.add_mesh(lumen);
+  for (const XrayMesh& m : body_xray_meshes(build_body_context(sim.tree())))
+    renderer_.set_static(renderer_.add_mesh(m), true);
+  const TriangleMesh ph = placeholder_tube();
+  for (int i = 0; i < sim.num_instruments(); ++i) {
+    Slots s;
+    s.visual = instrument_visual(sim.instrument_spec(i), sim.scenario().instruments[i].name);
+    s.shaft =
+        renderer_.add_mesh({s.visual.name + "_shaft", ph, s.visual.shaft, s.visual.shaft_fill, {}});
+    if (s.visual.radiopaque_length > 0.0)
+      s.radiopaque = renderer_.add_mesh(
+          {s.visual.name + "_radiopaque", ph, s.visual.radiopaque, s.visual.radiopaque_fill, {}});
+    for (std::size_t k = 0; k < s.visual.marker_from_tip.size(); ++k)
+      s.markers.push_back(
+          renderer_.add_mesh({s.visual.name + "_marker", ph, XrayMaterial::kPtIr, 1.0f, {}}));
+    instruments_.push_back(std::move(s));
+  }
+}
+
+void SimFluoroscopy::frame(const Simulator& sim, const CArmPose& pose,
+                           const ImageChainSettings& chain, std::vector<std::uint8_t>& out) {
+  if (const CardiacMotion* m = sim.motion()) {
+    lumen_now_.resize(lumen_rest_.size());
+    const double t = sim.time();
+    for (std::size_t v = 0; v < lumen_rest_.size(); ++v)
+      lumen_now_[v] = lumen_rest_[v] + m->displacement(lumen_rest_[v], t);
+    renderer_.update_vertices(lumen_, lumen_now_);
+  }
+  renderer_.set_group_concentration(sim.contrast());
+  for (int i = 0; i < sim.num_instruments(); ++i) {
+    Slots& s = instruments_[i];
+    const Instrument& in = sim.instrument(i);
+    // The part inside the body, from the node at the access point on.
+    const int first = std::max(0, in.drive.first_free - 1);
+    s.visual.nodes.assign(in.state.x.begin() + first, in.state.x.end());
+    const bool inside = in.drive.depth > 1e-3 && s.visual.nodes.size() >= 2;
+    std::vector<XrayMesh> meshes;
+    if (inside) meshes = instrument_xray_meshes(s.visual);
+    std::size_t next = 0;
+    auto assign = [&](int id, const std::string& suffix) {
+      if (id < 0) return;
+      if (next < meshes.size() && meshes[next].name == s.visual.name + suffix) {
+        renderer_.update_mesh(id, meshes[next].mesh);
+        renderer_.set_visible(id, true);
+        ++next;
+      } else {
+        renderer_.set_visible(id, false);
+      }
+    };
+    assign(s.shaft, "_shaft");
+    assign(s.radiopaque, "_radiopaque");
+    for (int id : s.markers) assign(id, "_marker");
+  }
+  renderer_.render(pose);
+  renderer_.read_line_integral(line_integral_);
+  image_chain(line_integral_, renderer_.size(), chain, out);
+}
+
+}  // namespace vcsim
