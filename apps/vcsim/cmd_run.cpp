@@ -1,0 +1,311 @@
+// `vcsim run SCENARIO --out DIR`: a procedure headless. Loads the scenario, steps physics at its
+// dt, renders fluoroscopy at its frame rate into DIR/frames/*.png (and DIR/run.mp4 when ffmpeg
+// is installed), writes DIR/metrics.json, and shows a progress bar on a terminal.
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "commands.h"
+#include "vcsim/render.h"
+#include "vcsim/sim.h"
+
+namespace vcsim::app {
+
+namespace {
+
+namespace fs = std::filesystem;
+// Exit status of a run that went well but did not reach every landmark (2 is bad input).
+constexpr int kNotReached = 3;
+
+struct RunOptions {
+  std::string scenario = "default";
+  std::string out;
+  bool no_frames = false;
+  bool quiet = false;
+  bool trace = false;
+  double time_limit_s = 0.0;  // 0: the scenario's
+};
+
+// A name in data/scenarios or a path.
+fs::path scenario_path(const std::string& arg) {
+  const fs::path p(arg);
+  if (fs::exists(p)) return p;
+  const fs::path named = default_scenarios_dir() / (arg + ".json");
+  if (p.extension().empty() && fs::exists(named)) return named;
+  throw InputError("run", "SCENARIO",
+                   "expected a scenario file or a name in " + default_scenarios_dir().string() +
+                       ", got '" + arg + "'");
+}
+
+CArmPose pose_of(const Scenario& sc) {
+  CArmPose pose;
+  pose.primary_deg = sc.fluoro.primary_deg;
+  pose.secondary_deg = sc.fluoro.secondary_deg;
+  pose.fov = sc.fluoro.fov_mm * 1e-3;
+  try {
+    pose.validate(sc.source);
+  } catch (const InputError& e) {
+    throw InputError(sc.source, "fluoroscopy." + e.field(), e.what());
+  }
+  return pose;
+}
+
+// Where the operator centres the table: the left coronary tree, or the leading tip when
+// follow_tip is on and the tip is far from it.
+Vec3 heart_centre(const VesselTree& tree) {
+  const int lm = tree.find("left_main");
+  Vec3 sum = Vec3::Zero();
+  int count = 0;
+  for (int i = 0; i < tree.num_segments(); ++i)
+    if (lm >= 0 && is_descendant(tree, i, lm))
+      for (const Vec3& q : tree.segments[i].points) {
+        sum += q;
+        ++count;
+      }
+  if (count > 0) return sum / count;
+  return tree.heart ? tree.heart->centre : Vec3::Zero();
+}
+
+class ProgressBar {
+ public:
+  explicit ProgressBar(bool on) : on_(on && isatty(STDERR_FILENO)) {}
+  void show(double t, double limit, const std::string& what, double rtf) {
+    if (!on_) return;
+    const int width = 30;
+    const int filled = static_cast<int>(width * std::min(1.0, t / limit));
+    std::string bar(filled, '#');
+    bar.resize(width, '.');
+    std::fprintf(stderr, "\r[%s] %6.2f s  %5.1fx real time  %-48.48s", bar.c_str(), t, rtf,
+                 what.c_str());
+    std::fflush(stderr);
+  }
+  void done() {
+    if (on_) std::fprintf(stderr, "\n");
+  }
+
+ private:
+  bool on_;
+};
+
+nlohmann::json shape_json(const Instrument& in) {
+  nlohmann::json pts = nlohmann::json::array();
+  for (int i = std::max(0, in.drive.first_free - 1); i < in.model.n; ++i) {
+    const Vec3& x = in.state.x[i];
+    pts.push_back(
+        {std::round(x.x() * 1e4) / 10, std::round(x.y() * 1e4) / 10, std::round(x.z() * 1e4) / 10});
+  }
+  return pts;
+}
+
+int cmd_run(const RunOptions& o) {
+  const fs::path file = scenario_path(o.scenario);
+  Scenario sc = load_scenario(file);
+  if (o.time_limit_s != 0.0)
+    sc.time_limit = require_in_range(o.time_limit_s, 0.0, 3600.0, "run", "--time-limit");
+  CArmPose pose = pose_of(sc);
+  const fs::path out = o.out.empty() ? fs::path("out") / sc.name : fs::path(o.out);
+  const fs::path frames_dir = out / "frames";
+  std::error_code ec;
+  fs::create_directories(frames_dir, ec);
+  if (ec)
+    throw InputError("run", "--out", "expected a writable folder, got '" + out.string() + "'");
+  // Frames of an earlier run in the same folder would mix with this one's.
+  for (const auto& e : fs::directory_iterator(frames_dir))
+    if (e.path().extension() == ".png") fs::remove(e.path());
+
+  std::optional<ScriptedTimeline> timeline;
+  if (!sc.timeline.empty()) timeline = ScriptedTimeline::load(sc.base_dir / sc.timeline);
+
+  std::cerr << "run: " << sc.name << " (" << file.string() << "): building the scene\n";
+  const double wall0 = now_us();
+  Simulator sim(sc);
+  std::unique_ptr<Autopilot> pilot;
+  if (!timeline) {
+    pilot = std::make_unique<Autopilot>(sim);
+    pilot->trace = o.trace;
+  }
+
+  std::unique_ptr<HeadlessGlContext> gl;
+  std::unique_ptr<SimFluoroscopy> fluoro;
+  ImageChainSettings chain;
+  chain.dose = sc.fluoro.dose;
+  if (!o.no_frames) {
+    gl = std::make_unique<HeadlessGlContext>();
+    fluoro = std::make_unique<SimFluoroscopy>(
+        sim, sc.fluoro.size, sc.fluoro.energy_kev == 80 ? BeamEnergy::k80keV : BeamEnergy::k60keV);
+  }
+  const Vec3 centre = heart_centre(sim.tree());
+  pose.isocentre = centre;
+  const double frame_dt = 1.0 / sc.fluoro.fps;
+  double next_frame = 0.0;
+  int frames = 0;
+  double render_s = 0.0;
+  std::vector<std::uint8_t> img;
+  ProgressBar bar(!o.quiet);
+  DeviceCommands cmds;
+  const double end_time = timeline ? std::min(sc.time_limit, timeline->duration()) : sc.time_limit;
+  std::string last_status;
+  const double loop0 = now_us();
+  while (sim.time() < end_time - 1e-9) {
+    if (pilot) {
+      pilot->command(sim, cmds);
+      if (pilot->finished()) break;
+      if (pilot->status() != last_status) {
+        last_status = pilot->status();
+        if (!isatty(STDERR_FILENO) && !o.quiet)
+          std::cerr << "run: t = " << sim.time() << " s: " << last_status << "\n";
+      }
+    } else {
+      timeline->poll(sim.time(), cmds);
+    }
+    sim.step(cmds);
+    if (timeline) timeline->publish(sim.feedback());
+    if (fluoro && sim.time() >= next_frame - 1e-9) {
+      const double r0 = now_us();
+      if (sc.fluoro.follow_tip) {
+        // The operator pans the table when the leading tip nears the edge of the field (in
+        // moves, as at a real table, which also keeps the body's cached image valid), and
+        // back to the heart once the tip is there.
+        int lead = 0;
+        for (int i = 1; i < sim.num_instruments(); ++i)
+          if (sim.depth(i) > sim.depth(lead)) lead = i;
+        const Vec3 tip = sim.tip(lead);
+        const Vec3 want = (tip - centre).norm() > 0.3 * pose.fov ? tip : centre;
+        if ((want - pose.isocentre).norm() > 0.3 * pose.fov) pose.isocentre = want;
+      }
+      chain.seed = static_cast<std::uint64_t>(frames + 1);
+      fluoro->frame(sim, pose, chain, img);
+      char name[32];
+      std::snprintf(name, sizeof name, "frame_%05d.png", frames);
+      write_png_grey((frames_dir / name).string(), img, sc.fluoro.size, sc.fluoro.size);
+      ++frames;
+      next_frame += frame_dt;
+      render_s += (now_us() - r0) * 1e-6;
+    }
+    if (sim.metrics().steps % 50 == 0) {
+      const double wall = (now_us() - loop0) * 1e-6;
+      bar.show(sim.time(), end_time, pilot ? pilot->status() : "timeline",
+               wall > 0 ? sim.time() / wall : 0.0);
+    }
+  }
+  bar.done();
+  const double wall_total = (now_us() - wall0) * 1e-6;
+  const double loop_wall = (now_us() - loop0) * 1e-6;
+
+  // Video, when ffmpeg is there (optional; the frames are the primary output).
+  std::string video;
+  if (frames > 0 && std::system("command -v ffmpeg > /dev/null 2>&1") == 0) {
+    const std::string cmd = "ffmpeg -y -loglevel error -framerate " +
+                            std::to_string(sc.fluoro.fps) + " -i '" +
+                            (frames_dir / "frame_%05d.png").string() +
+                            "' -pix_fmt yuv420p -vf scale=trunc(iw/2)*2:trunc(ih/2)*2 '" +
+                            (out / "run.mp4").string() + "'";
+    if (std::system(cmd.c_str()) == 0) video = (out / "run.mp4").string();
+  }
+
+  const SimMetrics& m = sim.metrics();
+  nlohmann::json j;
+  j["scenario"] = sc.name;
+  j["scenario_file"] = file.string();
+  j["dt_s"] = sc.dt;
+  j["sim_time_s"] = m.sim_time;
+  j["wall_time_s"] = loop_wall;
+  j["setup_time_s"] = wall_total - loop_wall;
+  j["physics_time_s"] = m.wall_time;
+  j["render_time_s"] = render_s;
+  j["real_time_factor"] = loop_wall > 0 ? m.sim_time / loop_wall : 0.0;
+  j["physics_real_time_factor"] = m.wall_time > 0 ? m.sim_time / m.wall_time : 0.0;
+  j["steps"] = m.steps;
+  j["rollbacks"] = m.rollbacks;
+  j["frames"] = frames;
+  j["fluoroscopy_time_s"] = frames * frame_dt;
+  j["contrast_volume_ml"] = m.contrast_volume;
+  j["video"] = video;
+  nlohmann::json insts = nlohmann::json::array();
+  for (int i = 0; i < sim.num_instruments(); ++i) {
+    const Instrument& in = sim.instrument(i);
+    const TreeHit h = sim.tip_location(i);
+    insts.push_back({{"name", sc.instruments[i].name},
+                     {"catalogue", sc.instruments[i].catalogue},
+                     {"nodes", in.model.n},
+                     {"inserted_mm", in.drive.depth * 1e3},
+                     {"tip_path_mm", m.tip_path[i] * 1e3},
+                     {"peak_wall_force_n", m.peak_wall_force[i]},
+                     {"peak_axial_force_n", m.peak_axial_force[i]},
+                     {"tip_segment", in.drive.depth > 0 ? sim.tree().segments[h.loc.segment].name
+                                                        : std::string("outside")},
+                     {"tip_distance_mm", h.loc.distance * 1e3},
+                     {"final_shape_mm", shape_json(in)}});
+  }
+  j["instruments"] = insts;
+  nlohmann::json lms = nlohmann::json::array();
+  std::vector<std::string> missed;
+  for (const LandmarkRecord& l : m.landmarks) {
+    lms.push_back({{"name", l.name},
+                   {"instrument", l.instrument},
+                   {"reached", l.reached},
+                   {"time_s", l.reached ? nlohmann::json(l.time) : nlohmann::json(nullptr)}});
+    if (!l.reached) missed.push_back(l.name);
+  }
+  j["landmarks"] = lms;
+  if (pilot)
+    j["autopilot"] = {{"finished", pilot->finished() && !pilot->failed()},
+                      {"failed", pilot->failed()},
+                      {"status", pilot->status()},
+                      {"retries", pilot->retries()}};
+  const bool success = missed.empty();
+  std::string outcome = "all landmarks reached";
+  if (!success) {
+    outcome = "not reached:";
+    for (const auto& s : missed) outcome += " '" + s + "'";
+    outcome +=
+        sim.time() >= end_time - 1e-9 ? " (time limit " + std::to_string(end_time) + " s)" : "";
+    if (pilot && pilot->failed()) outcome += " (" + pilot->status() + ")";
+  }
+  j["outcome"] = outcome;
+  j["success"] = success;
+  const fs::path metrics = out / "metrics.json";
+  std::ofstream(metrics) << j.dump(2) << "\n";
+
+  std::cout << "run: " << sc.name << ": " << outcome << "\n";
+  for (const LandmarkRecord& l : m.landmarks)
+    std::cout << "  " << (l.reached ? "reached " : "MISSED  ") << l.name << " (" << l.instrument
+              << ")" << (l.reached ? " at " + std::to_string(l.time) + " s" : "") << "\n";
+  std::cout << "  simulated " << m.sim_time << " s in " << loop_wall << " s wall ("
+            << j["real_time_factor"].get<double>() << "x real time; physics alone "
+            << j["physics_real_time_factor"].get<double>() << "x)\n"
+            << "  frames:  " << frames_dir.string() << " (" << frames << " PNG at " << sc.fluoro.fps
+            << " fps)\n";
+  if (!video.empty()) std::cout << "  video:   " << video << "\n";
+  std::cout << "  metrics: " << metrics.string() << "\n";
+  return success ? 0 : kNotReached;
+}
+
+void install(CLI::App& app, int& status) {
+  auto o = std::make_shared<RunOptions>();
+  auto* cmd = app.add_subcommand("run", "Run a scenario headless: frames, metrics, landmarks");
+  cmd->add_option("scenario", o->scenario,
+                  "Scenario file, or a name in data/scenarios (default: default)");
+  cmd->add_option("--out", o->out, "Output folder (default: out/<scenario name>)");
+  cmd->add_flag("--no-frames", o->no_frames, "Physics only: no fluoroscopy frames");
+  cmd->add_flag("--quiet", o->quiet, "No progress output");
+  cmd->add_flag("--trace", o->trace, "Print what the autopilot sees and does");
+  cmd->add_option("--time-limit", o->time_limit_s, "Simulated seconds before giving up");
+  cmd->callback([o, &status] { status = cmd_run(*o); });
+}
+
+const int kRegistered = register_command(5, install);
+
+}  // namespace
+
+}  // namespace vcsim::app

@@ -1,0 +1,340 @@
+// The autopilot: a closed-loop operator that acts only through the hands' commands at the sheath
+// (insertion depth and roll per instrument), reading tip positions as a trainee reads the screen
+// (docs/scenarios.md). Navigation follows the centreline route to a goal: the shaped tip is
+// turned toward where the route goes next, the instrument advances while the tip makes progress,
+// and it backs off and retries with the tip turned when it stops or enters a wrong branch.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <numbers>
+
+#include "vcsim/sim.h"
+
+namespace vcsim {
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+constexpr double kSpacing = 1e-3;       // m between route points
+constexpr double kProgressStep = 1e-3;  // m of progress that counts as moving on
+constexpr double kLookAhead = 12e-3;    // m along the route the tip is aimed at
+constexpr double kBranchAhead = 40e-3;
+constexpr double kHoldLost = 1.5;       // s out of reach before a held tip counts as fallen out
+constexpr double kHoldReach = 8e-3;     // m: a held tip farther than this from its route is lost
+constexpr double kHoldDeadband = 2e-3;  // m of tip displacement the hand lets pass
+constexpr double kHoldGain = 3.0;       // 1/s: depth correction per metre of tip displacement
+constexpr double kHoldRange = 15e-3;    // m either way of the seated depth
+constexpr double kApproach = 30e-3;     // m before the goal where the advance slows down  // m: a
+                                        // branch this close ahead is aimed at
+constexpr double kDeadband = 10.0 * kPi / 180.0;
+
+// Distal direction of the instrument's shaft just proximal to its shaped tip, and of the tip.
+void tip_directions(const Instrument& in, double shaped, Vec3& shaft, Vec3& tipdir) {
+  const RodModel& md = in.model;
+  const auto& x = in.state.x;
+  const int n = md.n;
+  tipdir = (x[n - 1] - x[n - 2]).normalized();
+  // Nodes about shaped + 5 mm and shaped + 15 mm from the tip.
+  auto node_at = [&](double from_tip) {
+    const double s = md.length - from_tip;
+    int i = n - 1;
+    while (i > 0 && md.node_s[i] > s) --i;
+    return std::max(i, in.drive.first_free);
+  };
+  const int a = node_at(shaped + 15e-3), b = node_at(shaped + 5e-3);
+  shaft = a < b ? Vec3((x[b] - x[a]).normalized()) : tipdir;
+}
+
+}  // namespace
+
+Autopilot::Autopilot(const Simulator& sim) : plan_(sim.scenario().autopilot) {
+  const int n = sim.num_instruments();
+  depth_.assign(n, 0.0);
+  roll_.assign(n, 0.0);
+  roll_target_.assign(n, 0.0);
+  for (int i = 0; i < n; ++i) {
+    depth_[i] = sim.depth(i);
+    roll_[i] = roll_target_[i] = sim.instrument(i).drive.roll;
+  }
+  phase_ = 0;
+  if (!plan_.empty()) start_phase(sim);
+}
+
+void Autopilot::start_phase(const Simulator& sim) {
+  phase_start_ = sim.time();
+  retries_ = 0;
+  backing_off_ = false;
+  if (finished()) {
+    status_ = "done";
+    return;
+  }
+  const AutopilotPhase& ph = plan_[phase_];
+  const Scenario& sc = sim.scenario();
+  leader_ = ph.instrument.empty() ? -1 : sc.find_instrument(ph.instrument);
+  // An instrument this phase moves is no longer held where an earlier phase left it.
+  std::erase_if(holds_, [&](const Hold& h) {
+    return h.instrument == leader_ || h.instrument == sc.find_instrument(ph.follower);
+  });
+  follower_ = ph.follower.empty() ? -1 : sc.find_instrument(ph.follower);
+  status_ = std::string(to_string(ph.kind)) + (ph.instrument.empty() ? "" : " " + ph.instrument);
+  if (ph.kind != AutopilotPhase::Kind::kNavigate) return;
+  const VesselTree& tree = sim.tree();
+  goal_segment_ = tree.find(ph.goal_segment);
+  status_ += " to " + ph.goal_segment;
+  goal_distance_ = ostium_distance(tree, goal_segment_) + ph.goal_distance;
+  const TreeLocation goal{goal_segment_, goal_distance_};
+  route_ = route(tree, tree.access, goal, kSpacing);
+  route_s_.assign(route_.size(), 0.0);
+  for (std::size_t k = 1; k < route_.size(); ++k)
+    route_s_[k] = route_s_[k - 1] + (route_[k] - route_[k - 1]).norm();
+  on_route_.assign(tree.num_segments(), 0);
+  route_segment_.clear();
+  for (const Vec3& p : route_) {
+    const TreeHit h = locate(tree, p);
+    on_route_[h.loc.segment] = 1;
+    route_segment_.push_back(h.loc.segment);
+  }
+  for (int s = goal_segment_; s >= 0; s = tree.segments[s].parent) on_route_[s] = 1;
+  progress_ = best_progress_ = 0.0;
+  best_time_ = sim.time();
+  roll_start_ = roll_[leader_];
+  depth_at_best_ = -1.0;
+}
+
+void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
+  const double dt = sim.scenario().dt;
+  const double t = sim.time();
+  const int L = leader_;
+  const Instrument& in = sim.instrument(L);
+  const Vec3 X = sim.tip_rest(L);
+  const TreeHit hit = locate(sim.tree(), X);
+
+  // Progress: the nearest route point within a window around the last progress.
+  std::size_t best = 0;
+  double best_d = 1e300;
+  for (std::size_t k = 0; k < route_.size(); ++k) {
+    if (std::abs(route_s_[k] - progress_) > 0.06 && !(progress_ == 0.0)) continue;
+    const double d = (route_[k] - X).squaredNorm();
+    if (d < best_d) {
+      best_d = d;
+      best = k;
+    }
+  }
+  progress_ = route_s_[best];
+  const bool off_route = !on_route_[hit.loc.segment] || hit.outside > 2e-3;
+  const bool reached = hit.loc.segment == goal_segment_ &&
+                       hit.loc.distance >= goal_distance_ - ph.tolerance && hit.outside < 0.5e-3;
+  if (reached) {
+    // Seat it: a little more insertion keeps a gentle forward load on the tip (a guiding
+    // catheter stays engaged in an ostium that way); later phases keep it there.
+    depth_[L] = sim.depth(L) + ph.seat;
+    Hold h;
+    h.instrument = L;
+    h.seen = t;
+    h.phase = ph;
+    h.depth = depth_[L];
+    // Its route runs on past the goal, so that a tip that dives in is seen to.
+    const VesselTree& tree = sim.tree();
+    const double beyond =
+        std::min(segment_length(tree.segments[goal_segment_]), goal_distance_ + ph.seat + 0.03);
+    const std::vector<Vec3> r = route(tree, tree.access, {goal_segment_, beyond}, kSpacing);
+    double s_k = 0.0;
+    for (std::size_t k = 0; k < r.size(); ++k) {
+      if (k > 0) s_k += (r[k] - r[k - 1]).norm();
+      if (s_k < progress_ - 0.1) continue;
+      h.route.push_back(r[k]);
+      h.route_s.push_back(s_k);
+    }
+    h.target = ph.seat;
+    if (!h.route.empty()) {
+      std::size_t nearest = 0;
+      for (std::size_t k = 1; k < h.route.size(); ++k)
+        if ((h.route[k] - X).squaredNorm() < (h.route[nearest] - X).squaredNorm()) nearest = k;
+      h.target += h.route_s[nearest];
+    }
+    holds_.push_back(std::move(h));
+    ++phase_;
+    start_phase(sim);
+    return;
+  }
+  // Slack: insertion since the tip last made progress (a loop forming in a wide vessel).
+  if (depth_at_best_ < 0.0) depth_at_best_ = sim.depth(L);
+  const double slack = sim.depth(L) - depth_at_best_;
+
+  if (backing_off_) {
+    depth_[L] = std::max(0.0, depth_[L] - ph.speed * dt);
+    // A tip in a wrong branch is pulled until it is back on the route, then a little more.
+    if (off_route) backoff_until_ = std::min(backoff_until_, sim.depth(L) - 0.01);
+    if (depth_[L] <= backoff_until_ && !off_route) {
+      backing_off_ = false;
+      best_progress_ = progress_;
+      best_time_ = t;
+      depth_at_best_ = sim.depth(L);
+    }
+  } else if (off_route || t - best_time_ > stuck_time || slack > max_slack) {
+    if (++retries_ > max_retries) {
+      failed_ = true;
+      status_ = "gave up: " + ph.instrument + " stuck before " + ph.goal_segment + " after " +
+                std::to_string(max_retries) + " retries";
+      return;
+    }
+    ++retries_total_;
+    backing_off_ = true;
+    backoff_until_ = std::max(0.0, std::min(sim.depth(L), depth_at_best_) - backoff);
+    depth_[L] = sim.depth(L);
+    // Turn the tip a quarter turn before the next try, so that the tries cover every direction.
+    roll_target_[L] = roll_[L] + retry_turn;
+  } else {
+    if (progress_ > best_progress_ + kProgressStep) {
+      best_progress_ = progress_;
+      best_time_ = t;
+      depth_at_best_ = sim.depth(L);
+    }
+    // Slow down toward the goal and keep the commanded depth near the real one (the drive can
+    // lag behind a position command when the hand pushes against resistance).
+    const double to_goal = route_s_.back() - progress_;
+    // Slow down over the last few centimetres (an ostium is found at a walking pace).
+    const double v = std::clamp(to_goal / kApproach, 0.25, 1.0) * ph.speed;
+    depth_[L] = std::min(depth_[L] + v * dt, sim.depth(L) + 0.01);
+    // Steer: turn the tip's bend toward the route ahead (about the shaft's axis).
+    std::size_t k = best;
+    while (k + 1 < route_.size() && route_s_[k] < progress_ + kLookAhead) ++k;
+    // A branch to enter ahead: aim at its ostium instead (a shaped tip is turned toward the
+    // side branch while it is still above it, then the instrument advances onto it).
+    const VesselTree& tree = sim.tree();
+    for (std::size_t j = best; j < route_.size() && route_s_[j] < progress_ + kBranchAhead; ++j) {
+      const int sj = route_segment_[j];
+      if (sj != hit.loc.segment && tree.segments[sj].parent == hit.loc.segment) {
+        k = std::min(route_.size() - 1, j + 2);
+        break;
+      }
+    }
+    Vec3 shaft, tipdir;
+    tip_directions(in, sim.instrument_spec(L).shaped_length(), shaft, tipdir);
+    const Vec3 want = route_[k] - X;
+    aim_distance_ = want.norm();
+    aim_angle_ = std::acos(std::clamp(tipdir.dot(want.normalized()), -1.0, 1.0));
+    const Vec3 b = tipdir - tipdir.dot(shaft) * shaft;
+    const Vec3 d = want - want.dot(shaft) * shaft;
+    if (b.norm() > 0.15 && d.norm() > 0.25 * want.norm()) {
+      const double phi = std::atan2(shaft.dot(b.cross(d)), b.dot(d));
+      // Within a turn either way of where the phase started: a tip that does not follow the hand
+      // is held by the wall, and winding the shaft up further would only store torque.
+      if (std::abs(phi) > kDeadband)
+        roll_target_[L] = std::clamp(roll_[L] + steer_gain * phi * dt, roll_start_ - 2 * kPi,
+                                     roll_start_ + 2 * kPi);
+    }
+  }
+  // The follower keeps its tip behind the leader's (a catheter tracking over its wire).
+  if (follower_ >= 0) depth_[follower_] = std::max(0.0, depth_[L] - ph.follow_gap);
+}
+
+void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
+  const Scenario& sc = sim.scenario();
+  const int n = sim.num_instruments();
+  const double dt = sc.dt;
+  const double t = sim.time();
+  out.time_s = t;
+  out.syringe_flow_ml_s = 0.0;
+  out.balloon_pressure_atm = 0.0;
+  if (!finished()) {
+    const AutopilotPhase& ph = plan_[phase_];
+    switch (ph.kind) {
+      case AutopilotPhase::Kind::kWait:
+        if (t - phase_start_ >= ph.duration) {
+          ++phase_;
+          start_phase(sim);
+        }
+        break;
+      case AutopilotPhase::Kind::kInject:
+        out.syringe_flow_ml_s = ph.flow;
+        if (t - phase_start_ >= ph.duration) {
+          ++phase_;
+          start_phase(sim);
+        }
+        break;
+      case AutopilotPhase::Kind::kWithdraw: {
+        const int r = ph.relative_to.empty() ? -1 : sc.find_instrument(ph.relative_to);
+        const double target = std::max(0.0, r >= 0 ? sim.depth(r) - ph.depth : ph.depth);
+        const double step = ph.speed * dt;
+        depth_[leader_] += std::clamp(target - depth_[leader_], -step, step);
+        if (std::abs(sim.depth(leader_) - target) < 0.5e-3) {
+          ++phase_;
+          start_phase(sim);
+        }
+        break;
+      }
+      case AutopilotPhase::Kind::kNavigate:
+        navigate(sim, ph);
+        break;
+    }
+  }
+  if (trace && t >= next_trace_) {
+    next_trace_ = t + 0.25;
+    std::fprintf(stderr,
+                 "autopilot t %.2f [%s] progress %.1f mm retries %d%s aim %.1f mm %.0f deg\n", t,
+                 status_.c_str(), progress_ * 1e3, retries_, backing_off_ ? " backing off" : "",
+                 aim_distance_ * 1e3, aim_angle_ * 180 / kPi);
+    for (int i = 0; i < n; ++i) {
+      if (sim.depth(i) <= 0.0) continue;
+      const TreeHit h = sim.tip_location(i);
+      std::fprintf(stderr, "    %-14s depth %6.1f mm (cmd %6.1f) roll %5.0f deg tip %s %.1f mm%s\n",
+                   sc.instruments[i].name.c_str(), sim.depth(i) * 1e3, depth_[i] * 1e3,
+                   roll_[i] * 180 / kPi, sim.tree().segments[h.loc.segment].name.c_str(),
+                   h.loc.distance * 1e3, h.outside > 0 ? " OUTSIDE" : "");
+    }
+  }
+  // Held instruments: the hand keeps the tip where it was seated, a little deeper when it
+  // backs out, a little less when it dives in, within a centimetre and a half.
+  for (std::size_t hi = 0; hi < holds_.size(); ++hi) {
+    const Hold& h = holds_[hi];
+    const Vec3 X = sim.tip_rest(h.instrument);
+    std::size_t best = 0;
+    for (std::size_t k = 1; k < h.route.size(); ++k)
+      if ((h.route[k] - X).squaredNorm() < (h.route[best] - X).squaredNorm()) best = k;
+    if ((h.route[best] - X).norm() <= kHoldReach) holds_[hi].seen = t;
+    if (t - h.seen > kHoldLost) {
+      // The tip fell out (a guiding catheter backing out of the ostium as the wire pushes).
+      // Re-engage it, with an instrument this phase drives inside it pulled back in first,
+      // then go on with this phase; at most max_reengage times per run.
+      if (!finished() && reengaged_ < max_reengage) {
+        ++reengaged_;
+        std::vector<AutopilotPhase> again;
+        const int inner = leader_;
+        if (inner >= 0 && sc.instruments[inner].inside == sc.instruments[h.instrument].name) {
+          AutopilotPhase w;
+          w.kind = AutopilotPhase::Kind::kWithdraw;
+          w.instrument = sc.instruments[inner].name;
+          w.relative_to = sc.instruments[h.instrument].name;
+          w.depth = 0.02;
+          w.speed = 0.05;
+          again.push_back(w);
+        }
+        again.push_back(h.phase);
+        plan_.insert(plan_.begin() + phase_, again.begin(), again.end());
+        holds_.erase(holds_.begin() + static_cast<std::ptrdiff_t>(hi));
+        start_phase(sim);
+        break;
+      }
+    }
+    // Out of reach (for a moment: a tip at an ostium slips in and out with the beat): the hand
+    // holds the shaft where it is rather than chase the tip with it.
+    if ((h.route[best] - X).norm() > kHoldReach) continue;
+    double err = h.target - h.route_s[best];
+    err = std::abs(err) < kHoldDeadband ? 0.0 : err - std::copysign(kHoldDeadband, err);
+    depth_[h.instrument] = std::clamp(depth_[h.instrument] + kHoldGain * err * dt,
+                                      h.depth - kHoldRange, h.depth + kHoldRange);
+  }
+  out.instruments.resize(n);
+  for (int i = 0; i < n; ++i) {
+    // The hand turns at a bounded rate toward the roll it wants.
+    roll_[i] += std::clamp(roll_target_[i] - roll_[i], -max_spin * dt, max_spin * dt);
+    InstrumentCommand& c = out.instruments[i];
+    c.name = sc.instruments[i].name;
+    c.mode = InstrumentCommand::Mode::kPosition;
+    c.translation_mm = depth_[i] * 1e3;
+    c.rotation_deg = roll_[i] * 180.0 / kPi;
+  }
+}
+
+}  // namespace vcsim

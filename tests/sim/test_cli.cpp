@@ -1,0 +1,119 @@
+// `vcsim run` end to end: a short scripted scenario writes frames and metrics; bad scenarios and
+// options exit with status 2 and a message naming the file and field; a target that is not
+// reached ends the run with a report (status 3), never a hang.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "../common/cli_runner.h"
+
+namespace vcsim::test {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path scratch(const std::string& name) {
+  const fs::path d = fs::temp_directory_path() / ("vcsim_sim_cli_" + name);
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+void write(const fs::path& p, const std::string& text) {
+  std::ofstream(p) << text;
+}
+
+// A J wire pushed 120 mm in 1.2 s by a timeline, with a landmark it reaches and one it cannot.
+std::string scenario(const std::string& extra_landmark, const std::string& fluoro) {
+  return R"({"format": "vcsim-scenario", "version": 1, "name": "push",
+    "motion": {"beating": false}, "dt_ms": 0.5, "time_limit_s": 1.4,
+    "instruments": [{"name": "wire", "catalogue": "wire-035-j3-hydrophilic", "tip_segment_mm": 2}],
+    "input": {"type": "timeline", "file": "timeline.json"},
+    "landmarks": [{"name": "external iliac", "instrument": "wire",
+                   "segment": "right_external_iliac"})" +
+         extra_landmark + R"(],
+    "fluoroscopy": )" +
+         fluoro + "}";
+}
+
+const char* kTimeline = R"({"keyframes": [
+  {"t_s": 0, "instruments": {"wire": {"translation_mm": 0, "rotation_deg": 0}}},
+  {"t_s": 1.2, "instruments": {"wire": {"translation_mm": 120, "rotation_deg": 0}}}]})";
+
+TEST(RunCli, ScriptedRunWritesFramesAndMetrics) {
+  const fs::path d = scratch("ok");
+  write(d / "timeline.json", kTimeline);
+  write(d / "s.json", scenario("", R"({"fps": 10, "follow_tip": true, "fov_mm": 250})"));
+  const CliResult r = run_cli("run " + (d / "s.json").string() + " --out " + (d / "out").string());
+  ASSERT_EQ(r.status, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("all landmarks reached"), std::string::npos) << r.out;
+  int frames = 0;
+  for (const auto& e : fs::directory_iterator(d / "out" / "frames"))
+    frames += e.path().extension() == ".png";
+  EXPECT_EQ(frames, 13);  // after the first step, then every 0.1 s through 1.2 s
+  const auto j = nlohmann::json::parse(slurp(d / "out" / "metrics.json"));
+  for (const char* key : {"sim_time_s", "wall_time_s", "real_time_factor", "fluoroscopy_time_s",
+                          "landmarks", "instruments", "outcome", "steps"})
+    EXPECT_TRUE(j.contains(key)) << key;
+  EXPECT_NEAR(j["sim_time_s"].get<double>(), 1.2, 1e-3);
+  EXPECT_EQ(j["steps"].get<int>(), 2400);  // 2 kHz
+  EXPECT_TRUE(j["landmarks"][0]["reached"].get<bool>());
+  const auto& w = j["instruments"][0];
+  EXPECT_NEAR(w["inserted_mm"].get<double>(), 120.0, 0.5);
+  EXPECT_GT(w["tip_path_mm"].get<double>(), 90.0);
+  EXPECT_GT(w["final_shape_mm"].size(), 10u);
+}
+
+TEST(RunCli, UnreachedTargetEndsWithAReport) {
+  const fs::path d = scratch("missed");
+  write(d / "timeline.json", kTimeline);
+  write(d / "s.json",
+        scenario(R"(, {"name": "LAD", "instrument": "wire", "segment": "lad"})", R"({"fps": 5})"));
+  const CliResult r =
+      run_cli("run " + (d / "s.json").string() + " --no-frames --out " + (d / "out").string());
+  EXPECT_EQ(r.status, 3) << r.out << r.err;
+  EXPECT_NE(r.out.find("not reached: 'LAD'"), std::string::npos) << r.out;
+  const auto j = nlohmann::json::parse(slurp(d / "out" / "metrics.json"));
+  EXPECT_FALSE(j["success"].get<bool>());
+  EXPECT_FALSE(j["landmarks"][1]["reached"].get<bool>());
+}
+
+TEST(RunCli, BadInputExitsWithTwo) {
+  const fs::path d = scratch("bad");
+  write(d / "timeline.json", kTimeline);
+  struct Case {
+    std::string file_text, expect;
+  };
+  const Case cases[] = {
+      {scenario("", R"({"primary_deg": 150})"), "fluoroscopy.primary_deg"},
+      {scenario("", R"({"secondary_deg": -80})"), "fluoroscopy.secondary_deg"},
+      {scenario("", R"({"dose": -5})"), "fluoroscopy.dose"},
+      {scenario("", R"({"zoom": 2})"), "fluoroscopy.zoom"},
+      {scenario(R"(, {"name": "x", "instrument": "wire", "segment": "nowhere"})", "{}"),
+       "landmarks[1].segment"},
+  };
+  for (const Case& c : cases) {
+    write(d / "s.json", c.file_text);
+    const CliResult r =
+        run_cli("run " + (d / "s.json").string() + " --no-frames --out " + (d / "out").string());
+    EXPECT_EQ(r.status, 2) << c.expect << "\n" << r.out << r.err;
+    EXPECT_NE(r.err.find(c.expect), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("s.json"), std::string::npos) << r.err;
+  }
+  // A missing timeline file and a missing scenario.
+  write(d / "s.json", scenario("", "{}"));
+  fs::remove(d / "timeline.json");
+  CliResult r =
+      run_cli("run " + (d / "s.json").string() + " --no-frames --out " + (d / "o").string());
+  EXPECT_EQ(r.status, 2) << r.err;
+  EXPECT_NE(r.err.find("timeline.json"), std::string::npos) << r.err;
+  r = run_cli("run no_such_scenario");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_NE(r.err.find("SCENARIO"), std::string::npos) << r.err;
+}
+
+}  // namespace
+}  // namespace vcsim::test

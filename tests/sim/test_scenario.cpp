@@ -1,0 +1,98 @@
+// The scenario format: the shipped default parses to what it says; every kind of bad input is
+// refused with an error naming the file and the field.
+#include <gtest/gtest.h>
+
+#include <string>
+
+#include "vcsim/sim.h"
+
+namespace vcsim {
+namespace {
+
+const char* kMinimal = R"({"format": "vcsim-scenario", "version": 1, "name": "t",
+  "instruments": [{"name": "wire", "catalogue": "wire-035-j3-hydrophilic"}],
+  "autopilot": [{"action": "navigate", "instrument": "wire",
+                 "goal": {"segment": "aortic_arch", "distance_mm": 5}}]})";
+
+// Replaces the first occurrence of `from` in the minimal scenario.
+std::string edit(const std::string& from, const std::string& to) {
+  std::string s = kMinimal;
+  const auto at = s.find(from);
+  EXPECT_NE(at, std::string::npos) << from;
+  return s.replace(at, from.size(), to);
+}
+
+void expect_error(const std::string& text, const std::string& field) {
+  try {
+    parse_scenario(text, "bad.json");
+    ADD_FAILURE() << "accepted; expected an error naming " << field;
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.source(), "bad.json");
+    EXPECT_EQ(e.field(), field) << e.what();
+  }
+}
+
+TEST(Scenario, DefaultParses) {
+  const Scenario sc = load_scenario(default_scenarios_dir() / "default.json");
+  EXPECT_EQ(sc.name, "default");
+  ASSERT_EQ(sc.instruments.size(), 3u);
+  EXPECT_EQ(sc.instruments[1].inside, "catheter");
+  EXPECT_TRUE(sc.beating);
+  EXPECT_LE(sc.dt, 1e-3);  // 1 kHz or faster
+  EXPECT_EQ(sc.landmarks.size(), 3u);
+  EXPECT_DOUBLE_EQ(sc.fluoro.fps, 15.0);
+  EXPECT_FALSE(sc.autopilot.empty());
+}
+
+TEST(Scenario, UnitsAreConverted) {
+  const Scenario sc = parse_scenario(kMinimal, "t.json");
+  ASSERT_EQ(sc.autopilot.size(), 1u);
+  EXPECT_DOUBLE_EQ(sc.autopilot[0].goal_distance, 5e-3);
+  EXPECT_DOUBLE_EQ(sc.dt, 1e-3);
+  EXPECT_EQ(sc.autopilot[0].kind, AutopilotPhase::Kind::kNavigate);
+}
+
+TEST(Scenario, BadInputNamesTheField) {
+  expect_error("{", "json");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"colour\": 1"), "colour");
+  expect_error(edit("vcsim-scenario", "other"), "format");
+  expect_error(edit("\"version\": 1", "\"version\": 2"), "version");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"dt_ms\": 2"),
+               "dt_ms (at most 1: 1 kHz)");
+  expect_error(edit("\"name\": \"wire\", ", "\"name\": \"wire\", \"max_nodes\": 5000, "),
+               "instruments[0].max_nodes");
+  expect_error(edit("\"name\": \"wire\", ", "\"name\": \"wire\", \"inside\": \"sheath\", "),
+               "instruments[0].inside");
+  expect_error(edit("\"action\": \"navigate\"", "\"action\": \"fly\""), "autopilot[0].action");
+  expect_error(edit("\"distance_mm\": 5", "\"distance_mm\": -5"), "autopilot[0].goal.distance_mm");
+  expect_error(edit("\"instrument\": \"wire\"", "\"instrument\": \"balloon\""), "autopilot[0]");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"fluoroscopy\": {\"dose\": -1}"),
+               "fluoroscopy.dose");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"fluoroscopy\": {\"size\": 300}"),
+               "fluoroscopy.size");
+  expect_error(
+      edit("\"name\": \"t\"", "\"name\": \"t\", \"fluoroscopy\": {\"primary_deg\": \"LAO\"}"),
+      "fluoroscopy.primary_deg");
+  expect_error(edit("\"name\": \"t\"",
+                    "\"name\": \"t\", \"landmarks\": [{\"name\": \"x\", "
+                    "\"instrument\": \"cath\", \"segment\": \"lad\"}]"),
+               "landmarks[0].instrument");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"input\": {\"type\": \"joystick\"}"),
+               "input.type");
+  expect_error(edit("{\"action\": \"navigate\"",
+                    "{\"action\": \"inject\", \"flow_ml_s\": 99}, "
+                    "{\"action\": \"navigate\""),
+               "autopilot[0].flow_ml_s");
+  // Duplicated names would make commands ambiguous.
+  expect_error(edit("\"catalogue\": \"wire-035-j3-hydrophilic\"}",
+                    "\"catalogue\": \"wire-035-j3-hydrophilic\"}, {\"name\": \"wire\", "
+                    "\"catalogue\": \"wire-014-floppy\"}"),
+               "instruments[1].name");
+}
+
+TEST(Scenario, MissingFileIsAnInputError) {
+  EXPECT_THROW(load_scenario("/nonexistent/scenario.json"), InputError);
+}
+
+}  // namespace
+}  // namespace vcsim

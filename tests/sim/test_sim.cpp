@@ -1,0 +1,187 @@
+// The simulator and the autopilot: locating tips in the tree, selective mass scaling against the
+// explicit stability bound, contrast transport against its closed form, a scripted insertion in
+// the default patient, and the autopilot on the default scenario.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+
+#include "vcsim/sim.h"
+
+namespace vcsim {
+namespace {
+
+TEST(Locate, PointsOnACentrelineAreFoundWhereTheyAre) {
+  const VesselTree tree = default_patient();
+  for (const char* name : {"lad", "rca", "thoracic_aorta", "right_external_iliac"}) {
+    const int s = tree.find(name);
+    const VesselSegment& seg = tree.segments[s];
+    const double d = 0.6 * segment_length(seg);
+    const TreeHit h = locate(tree, point_at(seg, d));
+    EXPECT_EQ(h.loc.segment, s) << name;
+    EXPECT_NEAR(h.loc.distance, d, 1e-6) << name;
+    EXPECT_NEAR(h.outside, -radius_at(seg, d), 1e-6) << name;
+  }
+  EXPECT_GT(locate(tree, Vec3(1.0, 1.0, 1.0)).outside, 0.5);
+  EXPECT_TRUE(is_descendant(tree, tree.find("lad"), tree.find("left_main")));
+  EXPECT_TRUE(is_descendant(tree, tree.find("lad"), tree.find("lad")));
+  EXPECT_FALSE(is_descendant(tree, tree.find("lad"), tree.find("rca")));
+}
+
+TEST(MassScaling, MakesTheStepStableAndOnlyAddsMass) {
+  const InstrumentCatalogue cat = load_catalogue(default_catalogue_dir());
+  for (const char* name : {"wire-035-j3-hydrophilic", "wire-014-floppy", "catheter-jl4-6f"}) {
+    RodDef def = to_rod_def(cat.get(name), Discretisation{});
+    def.base = BoundaryKind::kFree;
+    RodModel md = build_rod(def);
+    const RodModel before = md;
+    for (double dt : {1e-3, 2.5e-4}) {
+      md = before;
+      const double added = scale_for_time_step(md, dt, 5.0);
+      EXPECT_GE(estimate_stable_dt(md, RodSettings{}), dt * (1 - 1e-9)) << name;
+      double sum = 0.0;
+      for (int i = 0; i < md.n; ++i) {
+        EXPECT_GE(md.node_mass[i], before.node_mass[i]);
+        sum += md.node_mass[i] - before.node_mass[i];
+      }
+      EXPECT_NEAR(sum, added, 1e-9 * (1 + added));
+      for (int j = 0; j < md.m; ++j) {
+        const double l = md.rest_length[j];
+        EXPECT_LE(md.kp[j], 5.0 * md.youngs[j] * md.bend_inertia[j] / (l * l) * (1 + 1e-12));
+        EXPECT_LE(md.kp[j], before.kp[j]);
+        for (int a = 0; a < 3; ++a) EXPECT_GE(md.inertia[j][a], before.inertia[j][a]);
+      }
+    }
+    // A step already stable needs nothing: a coarse rod at a tiny step.
+    md = before;
+    EXPECT_EQ(scale_for_time_step(md, 1e-9, 1e9), 0.0);
+  }
+}
+
+TEST(Contrast, FillsDownstreamAfterTheDelayAndWashesOut) {
+  const VesselTree tree = default_patient();
+  ContrastSettings s;
+  s.blood_flow = 1.5;
+  s.blood_speed = 0.2;
+  s.washout = 1.0;
+  const double dt = 1e-3;
+  ContrastModel m(tree, s, dt);
+  const int lm = tree.find("left_main"), lad = tree.find("lad"), rca = tree.find("rca");
+  const TreeLocation at{lm, ostium_distance(tree, lm) + 2e-3};
+  const double q = 3.0;
+  // The LAD starts where the left main ends: contrast reaches it after (length - at) / speed.
+  const double delay = (attach_distance(tree, lad) - at.distance) / s.blood_speed;
+  int steps = 0;
+  for (; steps * dt < delay - 0.01; ++steps) m.step(q, at);
+  EXPECT_GT(m.concentration()[lm], 0.05f);
+  EXPECT_LT(m.concentration()[lad], 1e-6f);
+  for (; steps * dt < 2.0; ++steps) m.step(q, at);
+  const double c_inf = q / (q + s.blood_flow);  // closed form, full-strength contrast
+  EXPECT_NEAR(m.concentration()[lad], c_inf, 0.01 * c_inf);
+  EXPECT_NEAR(m.concentration()[lm], c_inf, 0.01 * c_inf);
+  EXPECT_EQ(m.concentration()[rca], 0.0f);  // not downstream
+  EXPECT_NEAR(m.volume(), q * steps * dt, 1e-9);
+  // Washout: after the bolus the LAD clears with the time constant.
+  const float c0 = m.concentration()[lad];
+  const int lag = static_cast<int>(std::ceil(delay / dt)) + 1;
+  for (int k = 0; k < lag; ++k) m.step(0.0, {});
+  const float c1 = m.concentration()[lad];
+  for (int k = 0; k < 1000; ++k) m.step(0.0, {});
+  EXPECT_NEAR(m.concentration()[lad] / c1, std::exp(-1.0), 0.01);
+  EXPECT_LE(c1, c0);
+}
+
+Scenario wire_only(double push_mm, double seconds) {
+  Scenario sc = parse_scenario(R"({"format": "vcsim-scenario", "version": 1, "name": "push",
+    "motion": {"beating": false}, "dt_ms": 0.5,
+    "instruments": [{"name": "wire", "catalogue": "wire-035-j3-hydrophilic", "tip_segment_mm": 2}],
+    "input": {"type": "timeline", "file": "unused.json"},
+    "landmarks": [{"name": "external iliac", "instrument": "wire",
+                   "segment": "right_external_iliac"}]})",
+                               "push.json");
+  sc.time_limit = seconds;
+  (void)push_mm;
+  return sc;
+}
+
+TEST(Simulator, ScriptedPushFollowsTheIliacRoute) {
+  Simulator sim(wire_only(150, 2.0));
+  DeviceCommands cmds;
+  cmds.instruments.resize(1);
+  cmds.instruments[0].name = "wire";
+  const double speed_mm_s = 100.0;
+  while (sim.time() < 1.5) {
+    cmds.instruments[0].translation_mm = std::min(150.0, speed_mm_s * sim.time());
+    sim.step(cmds);
+  }
+  const SimMetrics& m = sim.metrics();
+  EXPECT_EQ(m.rollbacks, 0);
+  EXPECT_NEAR(sim.depth(0), 0.150, 1e-3);
+  ASSERT_EQ(m.landmarks.size(), 1u);
+  EXPECT_TRUE(m.landmarks[0].reached);
+  // 150 mm in: the tip went up the femoral and into the external iliac, along the centreline.
+  const TreeHit h = sim.tip_location(0);
+  EXPECT_EQ(sim.tree().segments[h.loc.segment].name, "right_external_iliac");
+  EXPECT_GT(m.tip_path[0], 0.12);
+  EXPECT_LT(m.tip_path[0], 0.20);
+  // Every inserted node stays in the lumen (within its own radius of the wall).
+  const Instrument& in = sim.instrument(0);
+  for (int i = in.drive.first_free; i < in.model.n; ++i) {
+    ASSERT_TRUE(in.state.x[i].allFinite());
+    EXPECT_LT(locate(sim.tree(), in.state.x[i]).outside, 0.5e-3) << "node " << i;
+  }
+  // The hand feels the push (resistance from the wall), not a spike: bounded.
+  EXPECT_LT(std::abs(in.drive.axial_force), 5.0);
+}
+
+TEST(Simulator, ParkedInstrumentsDoNotMove) {
+  Simulator sim(wire_only(0, 1.0));
+  const Vec3 tip0 = sim.tip(0);
+  DeviceCommands none;  // no command: the hand holds it outside
+  for (int k = 0; k < 100; ++k) sim.step(none);
+  EXPECT_EQ((sim.tip(0) - tip0).norm(), 0.0);
+  EXPECT_EQ(sim.metrics().tip_path[0], 0.0);
+}
+
+TEST(Simulator, ScenarioNamesAreCheckedAgainstAnatomyAndCatalogue) {
+  Scenario sc = wire_only(0, 1.0);
+  sc.landmarks[0].segment = "circle_of_willis";
+  EXPECT_THROW(Simulator{sc}, InputError);
+  sc = wire_only(0, 1.0);
+  sc.instruments[0].catalogue = "wire-999";
+  EXPECT_THROW(Simulator{sc}, InputError);
+  sc = wire_only(0, 1.0);
+  sc.anatomy = "missing.json";
+  EXPECT_THROW(Simulator{sc}, InputError);
+}
+
+// The autopilot on the default scenario, physics only: the J wire is steered from the groin over
+// the iliac bifurcation and up the aorta into the ascending aorta, acting only through the hub.
+TEST(Autopilot, DefaultScenarioReachesTheAscendingAorta) {
+  Scenario sc = load_scenario(default_scenarios_dir() / "default.json");
+  Simulator sim(sc);
+  Autopilot pilot(sim);
+  DeviceCommands cmds;
+  const double budget = 10.0;  // s of simulated time
+  double done = -1.0;          // when the J wire's phase ended
+  while (sim.time() < budget && !pilot.finished()) {
+    pilot.command(sim, cmds);
+    if (pilot.phase() > 0 && done < 0.0) done = sim.time();
+    if (done >= 0.0 && sim.time() > done + 0.02) break;  // landmarks are checked every 5 ms
+    sim.step(cmds);
+  }
+  EXPECT_GE(done, 0.0) << pilot.status();
+  const SimMetrics& m = sim.metrics();
+  ASSERT_EQ(m.landmarks[0].name, "ascending aorta");
+  EXPECT_TRUE(m.landmarks[0].reached);
+  EXPECT_LT(m.landmarks[0].time, budget);
+  EXPECT_FALSE(pilot.failed()) << pilot.status();
+  EXPECT_EQ(m.rollbacks, 0);
+  // The catheter followed the wire over the arch (its tip 40 mm behind).
+  const TreeHit cath = sim.tip_location(sc.find_instrument("catheter"));
+  const std::string seg = sim.tree().segments[cath.loc.segment].name;
+  EXPECT_TRUE(seg == "aortic_arch" || seg == "ascending_aorta" || seg == "thoracic_aorta") << seg;
+}
+
+}  // namespace
+}  // namespace vcsim
