@@ -162,12 +162,45 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
   if (depth_at_best_ < 0.0) depth_at_best_ = sim.depth(L);
   const double slack = sim.depth(L) - depth_at_best_;
 
+  // Steer: turn the tip's bend toward the route ahead (about the shaft's axis).
+  auto steer = [&]() {
+    std::size_t k = best;
+    while (k + 1 < route_.size() && route_s_[k] < progress_ + kLookAhead) ++k;
+    // A branch to enter ahead: aim at its ostium instead (a shaped tip is turned toward the
+    // side branch while it is still above it, then the instrument advances onto it).
+    const VesselTree& tree = sim.tree();
+    for (std::size_t j = best; j < route_.size() && route_s_[j] < progress_ + kBranchAhead; ++j) {
+      const int sj = route_segment_[j];
+      if (sj != hit.loc.segment && tree.segments[sj].parent == hit.loc.segment) {
+        k = std::min(route_.size() - 1, j + 2);
+        break;
+      }
+    }
+    Vec3 shaft, tipdir;
+    tip_directions(in, sim.instrument_spec(L).shaped_length(), shaft, tipdir);
+    const Vec3 want = route_[k] - X;
+    aim_distance_ = want.norm();
+    aim_angle_ = std::acos(std::clamp(tipdir.dot(want.normalized()), -1.0, 1.0));
+    const Vec3 b = tipdir - tipdir.dot(shaft) * shaft;
+    const Vec3 d = want - want.dot(shaft) * shaft;
+    if (b.norm() > 0.15 && d.norm() > 0.25 * want.norm()) {
+      const double phi = std::atan2(shaft.dot(b.cross(d)), b.dot(d));
+      // Within a quarter turn either way of where the phase started: a tip that does not follow
+      // the hand is held by the wall, and winding the shaft up further only stores torque.
+      if (std::abs(phi) > kDeadband)
+        roll_target_[L] = std::clamp(roll_[L] + steer_gain * phi * dt, roll_start_ - kMaxRoll,
+                                     roll_start_ + kMaxRoll);
+    }
+  };
   if (backing_off_) {
     // Out of a wrong branch slowly: a shaped tip pulled back past the ostium it missed (a
     // Judkins tip in the sinus below the left main) often drops into it on the way.
     depth_[L] = std::max(0.0, depth_[L] - (off_route ? 0.25 : 1.0) * ph.speed * dt);
     // A tip in a wrong branch is pulled until it is back on the route, then a little more.
-    if (off_route) backoff_until_ = std::min(backoff_until_, sim.depth(L) - 0.01);
+    if (off_route) {
+      backoff_until_ = std::min(backoff_until_, sim.depth(L) - 0.01);
+      steer();  // keep the tip turned toward the ostium it is being pulled past
+    }
     if (depth_[L] <= backoff_until_ && !off_route) {
       backing_off_ = false;
       best_progress_ = progress_;
@@ -203,34 +236,7 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
     // Slow down over the last few centimetres (an ostium is found at a walking pace).
     const double v = std::clamp(to_goal / kApproach, 0.25, 1.0) * ph.speed;
     depth_[L] = std::min(depth_[L] + v * dt, sim.depth(L) + 0.01);
-    // Steer: turn the tip's bend toward the route ahead (about the shaft's axis).
-    std::size_t k = best;
-    while (k + 1 < route_.size() && route_s_[k] < progress_ + kLookAhead) ++k;
-    // A branch to enter ahead: aim at its ostium instead (a shaped tip is turned toward the
-    // side branch while it is still above it, then the instrument advances onto it).
-    const VesselTree& tree = sim.tree();
-    for (std::size_t j = best; j < route_.size() && route_s_[j] < progress_ + kBranchAhead; ++j) {
-      const int sj = route_segment_[j];
-      if (sj != hit.loc.segment && tree.segments[sj].parent == hit.loc.segment) {
-        k = std::min(route_.size() - 1, j + 2);
-        break;
-      }
-    }
-    Vec3 shaft, tipdir;
-    tip_directions(in, sim.instrument_spec(L).shaped_length(), shaft, tipdir);
-    const Vec3 want = route_[k] - X;
-    aim_distance_ = want.norm();
-    aim_angle_ = std::acos(std::clamp(tipdir.dot(want.normalized()), -1.0, 1.0));
-    const Vec3 b = tipdir - tipdir.dot(shaft) * shaft;
-    const Vec3 d = want - want.dot(shaft) * shaft;
-    if (b.norm() > 0.15 && d.norm() > 0.25 * want.norm()) {
-      const double phi = std::atan2(shaft.dot(b.cross(d)), b.dot(d));
-      // Within a quarter turn either way of where the phase started: a tip that does not follow
-      // the hand is held by the wall, and winding the shaft up further only stores torque.
-      if (std::abs(phi) > kDeadband)
-        roll_target_[L] = std::clamp(roll_[L] + steer_gain * phi * dt, roll_start_ - kMaxRoll,
-                                     roll_start_ + kMaxRoll);
-    }
+    steer();
   }
   // The follower keeps its tip behind the leader's (a catheter tracking over its wire).
   if (follower_ >= 0) depth_[follower_] = std::max(0.0, depth_[L] - ph.follow_gap);
