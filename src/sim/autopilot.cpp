@@ -27,6 +27,7 @@ constexpr double kHoldRange = 15e-3;    // m either way of the seated depth
 constexpr double kApproach = 30e-3;     // m before the goal where the advance slows down  // m: a
                                         // branch this close ahead is aimed at
 constexpr double kDeadband = 10.0 * kPi / 180.0;
+constexpr double kMaxRoll = kPi / 2;  // steering stays within a quarter turn of the phase start
 
 // Distal direction of the instrument's shaft just proximal to its shaped tip, and of the tip.
 void tip_directions(const Instrument& in, double shaped, Vec3& shaft, Vec3& tipdir) {
@@ -161,42 +162,8 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
   if (depth_at_best_ < 0.0) depth_at_best_ = sim.depth(L);
   const double slack = sim.depth(L) - depth_at_best_;
 
-  if (backing_off_) {
-    depth_[L] = std::max(0.0, depth_[L] - ph.speed * dt);
-    // A tip in a wrong branch is pulled until it is back on the route, then a little more.
-    if (off_route) backoff_until_ = std::min(backoff_until_, sim.depth(L) - 0.01);
-    if (depth_[L] <= backoff_until_ && !off_route) {
-      backing_off_ = false;
-      best_progress_ = progress_;
-      best_time_ = t;
-      depth_at_best_ = sim.depth(L);
-    }
-  } else if (off_route || t - best_time_ > stuck_time || slack > max_slack) {
-    if (++retries_ > max_retries) {
-      failed_ = true;
-      status_ = "gave up: " + ph.instrument + " stuck before " + ph.goal_segment + " after " +
-                std::to_string(max_retries) + " retries";
-      return;
-    }
-    ++retries_total_;
-    backing_off_ = true;
-    backoff_until_ = std::max(0.0, std::min(sim.depth(L), depth_at_best_) - backoff);
-    depth_[L] = sim.depth(L);
-    // Turn the tip a quarter turn before the next try, so that the tries cover every direction.
-    roll_target_[L] = roll_[L] + retry_turn;
-  } else {
-    if (progress_ > best_progress_ + kProgressStep) {
-      best_progress_ = progress_;
-      best_time_ = t;
-      depth_at_best_ = sim.depth(L);
-    }
-    // Slow down toward the goal and keep the commanded depth near the real one (the drive can
-    // lag behind a position command when the hand pushes against resistance).
-    const double to_goal = route_s_.back() - progress_;
-    // Slow down over the last few centimetres (an ostium is found at a walking pace).
-    const double v = std::clamp(to_goal / kApproach, 0.25, 1.0) * ph.speed;
-    depth_[L] = std::min(depth_[L] + v * dt, sim.depth(L) + 0.01);
-    // Steer: turn the tip's bend toward the route ahead (about the shaft's axis).
+  // Steer: turn the tip's bend toward the route ahead (about the shaft's axis).
+  auto steer = [&]() {
     std::size_t k = best;
     while (k + 1 < route_.size() && route_s_[k] < progress_ + kLookAhead) ++k;
     // A branch to enter ahead: aim at its ostium instead (a shaped tip is turned toward the
@@ -218,12 +185,58 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
     const Vec3 d = want - want.dot(shaft) * shaft;
     if (b.norm() > 0.15 && d.norm() > 0.25 * want.norm()) {
       const double phi = std::atan2(shaft.dot(b.cross(d)), b.dot(d));
-      // Within a turn either way of where the phase started: a tip that does not follow the hand
-      // is held by the wall, and winding the shaft up further would only store torque.
+      // Within a quarter turn either way of where the phase started: a tip that does not follow
+      // the hand is held by the wall, and winding the shaft up further only stores torque.
       if (std::abs(phi) > kDeadband)
-        roll_target_[L] = std::clamp(roll_[L] + steer_gain * phi * dt, roll_start_ - 2 * kPi,
-                                     roll_start_ + 2 * kPi);
+        roll_target_[L] = std::clamp(roll_[L] + steer_gain * phi * dt, roll_start_ - kMaxRoll,
+                                     roll_start_ + kMaxRoll);
     }
+  };
+  if (backing_off_) {
+    // Out of a wrong branch slowly: a shaped tip pulled back past the ostium it missed (a
+    // Judkins tip in the sinus below the left main) often drops into it on the way.
+    depth_[L] = std::max(0.0, depth_[L] - (off_route ? 0.25 : 1.0) * ph.speed * dt);
+    // A tip in a wrong branch is pulled until it is back on the route, then a little more.
+    if (off_route) {
+      backoff_until_ = std::min(backoff_until_, sim.depth(L) - 0.01);
+      steer();  // keep the tip turned toward the ostium it is being pulled past
+    }
+    if (depth_[L] <= backoff_until_ && !off_route) {
+      backing_off_ = false;
+      best_progress_ = progress_;
+      best_time_ = t;
+      depth_at_best_ = sim.depth(L);
+    }
+  } else if (off_route || t - best_time_ > stuck_time || slack > max_slack) {
+    if (++retries_ > max_retries) {
+      failed_ = true;
+      status_ = "gave up: " + ph.instrument + " stuck before " + ph.goal_segment + " after " +
+                std::to_string(max_retries) + " retries";
+      return;
+    }
+    ++retries_total_;
+    backing_off_ = true;
+    backoff_until_ = std::max(0.0, std::min(sim.depth(L), depth_at_best_) - backoff);
+    depth_[L] = sim.depth(L);
+    // Turn the tip a quarter turn before the next try, so that the tries cover every direction.
+    // Turn the tip before the next try, to the next of a few directions around where the phase
+    // started (+1, -1, +2, -2, 0 eighths of a turn): an operator does not wind a catheter up
+    // by whole turns, which stores torque that releases as a whip.
+    constexpr double kTries[] = {1.0, -1.0, 2.0, -2.0, 0.0};
+    roll_target_[L] = roll_start_ + retry_turn * kTries[(retries_ - 1) % 5];
+  } else {
+    if (progress_ > best_progress_ + kProgressStep) {
+      best_progress_ = progress_;
+      best_time_ = t;
+      depth_at_best_ = sim.depth(L);
+    }
+    // Slow down toward the goal and keep the commanded depth near the real one (the drive can
+    // lag behind a position command when the hand pushes against resistance).
+    const double to_goal = route_s_.back() - progress_;
+    // Slow down over the last few centimetres (an ostium is found at a walking pace).
+    const double v = std::clamp(to_goal / kApproach, 0.25, 1.0) * ph.speed;
+    depth_[L] = std::min(depth_[L] + v * dt, sim.depth(L) + 0.01);
+    steer();
   }
   // The follower keeps its tip behind the leader's (a catheter tracking over its wire).
   if (follower_ >= 0) depth_[follower_] = std::max(0.0, depth_[L] - ph.follow_gap);

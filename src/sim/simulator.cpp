@@ -19,6 +19,7 @@ constexpr double kCardiacOutputMlS = 83.0;
 constexpr double kContrastFill = 0.1;  // s, time constant of filling a segment once it arrives
 constexpr double kLandmarkInterval = 0.005;  // s between landmark checks
 constexpr double kDrag = 0.5;                // 1/s, mass- and inertia-proportional damping
+constexpr double kInternalDamping = 0.4;   // beta / dt (stable for beta w^2 dt < 1, w dt <= 1)
 constexpr double kParallelRatio = 5.0;       // K_p cap in units of E I / l^2 (physics.md 5.4)
 
 VesselTree load_anatomy(const Scenario& sc) {
@@ -135,6 +136,9 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
   // settles it without loading a long inserted shaft axially (physics.md 5.4).
   s.rod.drag = kDrag;
   s.rod.angular_drag = kDrag;
+  // Stiffness-proportional damping takes out the fast release of stored bending (a catheter's
+  // curve whipping round) without loading insertion the way mass-proportional drag does.
+  s.rod.internal_damping = kInternalDamping * sc_.dt;
   s.collisions = true;
   for (std::size_t i = 0; i < specs_.size(); ++i) {
     Discretisation disc;
