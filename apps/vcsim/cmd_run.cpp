@@ -4,15 +4,21 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <cstdlib>
+#include <deque>
+#include <exception>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <iostream>
 #include <memory>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "commands.h"
@@ -97,6 +103,129 @@ class ProgressBar {
   bool on_;
 };
 
+// Films the run on a second thread, as the desktop app will draw: the physics thread hands over
+// a copied state (FrameSnapshot) at each frame time; the worker owns the GL context, draws, runs
+// the image chain and writes the PNG. At most kQueue frames wait, so a slow renderer holds the
+// physics back instead of filling memory. The physics stays single-threaded and deterministic;
+// each frame's noise seed is its index, so the frames do not depend on timing either.
+class FrameWriter {
+ public:
+  FrameWriter(const Simulator& sim, int size, BeamEnergy energy, ImageChainSettings chain,
+              fs::path dir)
+      : chain_(chain), dir_(std::move(dir)), size_(size) {
+    std::promise<void> ready;
+    auto started = ready.get_future();
+    worker_ = std::thread([this, &sim, size, energy, &ready] {
+      bool signalled = false;  // after this, `ready` (the constructor's) is gone
+      try {
+        // The GL context is current on the thread that draws; the simulator's anatomy and
+        // instrument specs, read here, do not change during the run.
+        HeadlessGlContext gl;
+        SimFluoroscopy fluoro(sim, size, energy);
+        signalled = true;
+        ready.set_value();
+        run(fluoro);
+      } catch (...) {
+        std::lock_guard lock(m_);
+        if (!error_) error_ = std::current_exception();
+        failed_ = true;
+        cv_.notify_all();
+        if (!signalled) ready.set_value();
+      }
+    });
+    started.wait();
+    rethrow();
+  }
+  ~FrameWriter() {
+    {
+      std::lock_guard lock(m_);
+      closed_ = true;
+    }
+    cv_.notify_all();
+    if (worker_.joinable()) worker_.join();
+  }
+  FrameWriter(const FrameWriter&) = delete;
+  FrameWriter& operator=(const FrameWriter&) = delete;
+
+  void push(FrameSnapshot snap, const CArmPose& pose) {
+    std::unique_lock lock(m_);
+    cv_.wait(lock, [&] { return queue_.size() < kQueue || failed_; });
+    if (failed_) {
+      lock.unlock();
+      rethrow();
+    }
+    queue_.push_back({std::move(snap), pose, submitted_++});
+    cv_.notify_all();
+  }
+  // Waits until every frame handed over is written; rethrows the worker's error.
+  void finish() {
+    {
+      std::unique_lock lock(m_);
+      cv_.wait(lock, [&] { return (queue_.empty() && busy_ == 0) || failed_; });
+    }
+    rethrow();
+  }
+  int frames() const { return submitted_; }
+  double render_seconds() const { return render_s_; }
+
+ private:
+  static constexpr std::size_t kQueue = 4;
+  struct Job {
+    FrameSnapshot snap;
+    CArmPose pose;
+    int index = 0;
+  };
+  void run(SimFluoroscopy& fluoro) {
+    std::vector<std::uint8_t> img;
+    for (;;) {
+      Job job;
+      {
+        std::unique_lock lock(m_);
+        cv_.wait(lock, [&] { return !queue_.empty() || closed_; });
+        if (queue_.empty()) return;
+        job = std::move(queue_.front());
+        queue_.pop_front();
+        ++busy_;
+      }
+      cv_.notify_all();
+      const double t0 = now_us();
+      ImageChainSettings chain = chain_;
+      chain.seed = static_cast<std::uint64_t>(job.index + 1);
+      fluoro.frame(job.snap, job.pose, chain, img);
+      char name[32];
+      std::snprintf(name, sizeof name, "frame_%05d.png", job.index);
+      write_png_grey((dir_ / name).string(), img, size_, size_);
+      {
+        std::lock_guard lock(m_);
+        --busy_;
+        render_s_ += (now_us() - t0) * 1e-6;
+      }
+      cv_.notify_all();
+    }
+  }
+  void rethrow() {
+    std::exception_ptr e;
+    {
+      std::lock_guard lock(m_);
+      e = error_;
+    }
+    if (e) std::rethrow_exception(e);
+  }
+
+  ImageChainSettings chain_;
+  fs::path dir_;
+  int size_;
+  std::mutex m_;
+  std::condition_variable cv_;
+  std::deque<Job> queue_;
+  int busy_ = 0;
+  int submitted_ = 0;
+  bool closed_ = false, failed_ = false;
+  double render_s_ = 0.0;
+  std::exception_ptr error_;
+  std::thread worker_;
+};
+
 nlohmann::json shape_json(const Instrument& in) {
   nlohmann::json pts = nlohmann::json::array();
   for (int i = std::max(0, in.drive.first_free - 1); i < in.model.n; ++i) {
@@ -135,22 +264,17 @@ int cmd_run(const RunOptions& o) {
     pilot->trace = o.trace;
   }
 
-  std::unique_ptr<HeadlessGlContext> gl;
-  std::unique_ptr<SimFluoroscopy> fluoro;
   ImageChainSettings chain;
   chain.dose = sc.fluoro.dose;
-  if (!o.no_frames) {
-    gl = std::make_unique<HeadlessGlContext>();
-    fluoro = std::make_unique<SimFluoroscopy>(
-        sim, sc.fluoro.size, sc.fluoro.energy_kev == 80 ? BeamEnergy::k80keV : BeamEnergy::k60keV);
-  }
+  std::unique_ptr<FrameWriter> film;
+  if (!o.no_frames)
+    film = std::make_unique<FrameWriter>(
+        sim, sc.fluoro.size, sc.fluoro.energy_kev == 80 ? BeamEnergy::k80keV : BeamEnergy::k60keV,
+        chain, frames_dir);
   const Vec3 centre = heart_centre(sim.tree());
   pose.isocentre = centre;
   const double frame_dt = 1.0 / sc.fluoro.fps;
   double next_frame = 0.0;
-  int frames = 0;
-  double render_s = 0.0;
-  std::vector<std::uint8_t> img;
   ProgressBar bar(!o.quiet);
   DeviceCommands cmds;
   const double end_time = timeline ? std::min(sc.time_limit, timeline->duration()) : sc.time_limit;
@@ -170,8 +294,7 @@ int cmd_run(const RunOptions& o) {
     }
     sim.step(cmds);
     if (timeline) timeline->publish(sim.feedback());
-    if (fluoro && sim.time() >= next_frame - 1e-9) {
-      const double r0 = now_us();
+    if (film && sim.time() >= next_frame - 1e-9) {
       if (sc.fluoro.follow_tip) {
         // The operator pans the table when the leading tip nears the edge of the field (in
         // moves, as at a real table, which also keeps the body's cached image valid), and
@@ -183,14 +306,8 @@ int cmd_run(const RunOptions& o) {
         const Vec3 want = (tip - centre).norm() > 0.3 * pose.fov ? tip : centre;
         if ((want - pose.isocentre).norm() > 0.3 * pose.fov) pose.isocentre = want;
       }
-      chain.seed = static_cast<std::uint64_t>(frames + 1);
-      fluoro->frame(sim, pose, chain, img);
-      char name[32];
-      std::snprintf(name, sizeof name, "frame_%05d.png", frames);
-      write_png_grey((frames_dir / name).string(), img, sc.fluoro.size, sc.fluoro.size);
-      ++frames;
+      film->push(snapshot(sim), pose);
       next_frame += frame_dt;
-      render_s += (now_us() - r0) * 1e-6;
     }
     if (sim.metrics().steps % 50 == 0) {
       const double wall = (now_us() - loop0) * 1e-6;
@@ -198,6 +315,9 @@ int cmd_run(const RunOptions& o) {
                wall > 0 ? sim.time() / wall : 0.0);
     }
   }
+  if (film) film->finish();  // the last frames are written before the clock stops
+  const int frames = film ? film->frames() : 0;
+  const double render_s = film ? film->render_seconds() : 0.0;
   bar.done();
   const double wall_total = (now_us() - wall0) * 1e-6;
   const double loop_wall = (now_us() - loop0) * 1e-6;

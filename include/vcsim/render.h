@@ -257,10 +257,22 @@ InstrumentVisual instrument_visual(const InstrumentSpec& spec, const std::string
 // The simulator's scene uploaded once (lumen with per-segment contrast, body context,
 // instruments); each frame moves the lumen with the heart, re-meshes the inserted part of every
 // instrument, draws and runs the image chain. Needs a current GL context for its whole life.
+// What a frame shows of the simulator's state, copied so that another thread can draw it while
+// the physics goes on (the anatomy and motion it also reads never change during a run).
+struct FrameSnapshot {
+  double time = 0.0;                     // s (the lumen is moved to it)
+  std::vector<std::vector<Vec3>> nodes;  // (instrument) inserted centreline, empty if outside
+  std::vector<float> contrast;           // (segment)
+};
+FrameSnapshot snapshot(const Simulator& sim);
+
 class SimFluoroscopy {
  public:
+  // Reads the simulator's anatomy, body and instrument specs (which do not change during a run).
   SimFluoroscopy(const Simulator& sim, int size, BeamEnergy energy = BeamEnergy::k60keV);
   void frame(const Simulator& sim, const CArmPose& pose, const ImageChainSettings& chain,
+             std::vector<std::uint8_t>& out);
+  void frame(const FrameSnapshot& snap, const CArmPose& pose, const ImageChainSettings& chain,
              std::vector<std::uint8_t>& out);
   FluoroRenderer& renderer() { return renderer_; }
 
@@ -271,6 +283,7 @@ class SimFluoroscopy {
     std::vector<int> markers;
   };
   FluoroRenderer renderer_;
+  const CardiacMotion* motion_ = nullptr;
   int lumen_ = -1;
   std::vector<Vec3> lumen_rest_, lumen_now_;
   std::vector<Slots> instruments_;

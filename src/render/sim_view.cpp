@@ -40,7 +40,7 @@ TriangleMesh placeholder_tube() {
 }  // namespace
 
 SimFluoroscopy::SimFluoroscopy(const Simulator& sim, int size, BeamEnergy energy)
-    : renderer_(size) {
+    : renderer_(size), motion_(sim.motion()) {
   renderer_.set_beam_energy(energy);
   const XrayMesh lumen = lumen_xray_mesh(sim.lumen());
   lumen_rest_ = lumen.mesh.vertices;
@@ -63,25 +63,40 @@ SimFluoroscopy::SimFluoroscopy(const Simulator& sim, int size, BeamEnergy energy
   }
 }
 
-void SimFluoroscopy::frame(const Simulator& sim, const CArmPose& pose,
-                           const ImageChainSettings& chain, std::vector<std::uint8_t>& out) {
-  if (const CardiacMotion* m = sim.motion()) {
-    lumen_now_.resize(lumen_rest_.size());
-    const double t = sim.time();
-    for (std::size_t v = 0; v < lumen_rest_.size(); ++v)
-      lumen_now_[v] = lumen_rest_[v] + m->displacement(lumen_rest_[v], t);
-    renderer_.update_vertices(lumen_, lumen_now_);
-  }
-  renderer_.set_group_concentration(sim.contrast());
+FrameSnapshot snapshot(const Simulator& sim) {
+  FrameSnapshot f;
+  f.time = sim.time();
+  f.contrast = sim.contrast();
+  f.nodes.resize(sim.num_instruments());
   for (int i = 0; i < sim.num_instruments(); ++i) {
-    Slots& s = instruments_[i];
     const Instrument& in = sim.instrument(i);
+    if (in.drive.depth <= 1e-3) continue;
     // The part inside the body, from the node at the access point on.
     const int first = std::max(0, in.drive.first_free - 1);
-    s.visual.nodes.assign(in.state.x.begin() + first, in.state.x.end());
-    const bool inside = in.drive.depth > 1e-3 && s.visual.nodes.size() >= 2;
+    f.nodes[i].assign(in.state.x.begin() + first, in.state.x.end());
+  }
+  return f;
+}
+
+void SimFluoroscopy::frame(const Simulator& sim, const CArmPose& pose,
+                           const ImageChainSettings& chain, std::vector<std::uint8_t>& out) {
+  frame(snapshot(sim), pose, chain, out);
+}
+
+void SimFluoroscopy::frame(const FrameSnapshot& snap, const CArmPose& pose,
+                           const ImageChainSettings& chain, std::vector<std::uint8_t>& out) {
+  if (motion_) {
+    lumen_now_.resize(lumen_rest_.size());
+    for (std::size_t v = 0; v < lumen_rest_.size(); ++v)
+      lumen_now_[v] = lumen_rest_[v] + motion_->displacement(lumen_rest_[v], snap.time);
+    renderer_.update_vertices(lumen_, lumen_now_);
+  }
+  renderer_.set_group_concentration(snap.contrast);
+  for (std::size_t i = 0; i < instruments_.size(); ++i) {
+    Slots& s = instruments_[i];
+    s.visual.nodes = i < snap.nodes.size() ? snap.nodes[i] : std::vector<Vec3>{};
     std::vector<XrayMesh> meshes;
-    if (inside) meshes = instrument_xray_meshes(s.visual);
+    if (s.visual.nodes.size() >= 2) meshes = instrument_xray_meshes(s.visual);
     std::size_t next = 0;
     auto assign = [&](int id, const std::string& suffix) {
       if (id < 0) return;
