@@ -19,7 +19,7 @@ constexpr double kCardiacOutputMlS = 83.0;
 constexpr double kContrastFill = 0.1;  // s, time constant of filling a segment once it arrives
 constexpr double kLandmarkInterval = 0.005;  // s between landmark checks
 constexpr double kDrag = 0.5;                // 1/s, mass- and inertia-proportional damping
-constexpr double kInternalDamping = 0.4;   // beta / dt (stable for beta w^2 dt < 1, w dt <= 1)
+constexpr double kInternalDamping = 0.4;     // beta / dt (stable for beta w^2 dt < 1, w dt <= 1)
 constexpr double kParallelRatio = 5.0;       // K_p cap in units of E I / l^2 (physics.md 5.4)
 
 VesselTree load_anatomy(const Scenario& sc) {

@@ -183,7 +183,6 @@ TEST(Autopilot, DefaultScenarioReachesTheAscendingAorta) {
   EXPECT_TRUE(seg == "aortic_arch" || seg == "ascending_aorta" || seg == "thoracic_aorta") << seg;
 }
 
-
 // The whole default scenario, physics only: the J wire to the ascending aorta, the JL4 into the
 // left main, the 0.014" wire down the LAD past the 70 % lesion, in the beating heart, by the
 // autopilot alone, within the scenario's time limit (90 s simulated). About a minute of wall
