@@ -81,8 +81,8 @@ class StopOnSignal {
   StopOnSignal& operator=(const StopOnSignal&) = delete;
 
  private:
-  struct sigaction old_int_ {
-  }, old_term_{};
+  struct sigaction old_int_ = {};
+  struct sigaction old_term_ = {};
 };
 
 // The autopilot as an input source: it reads the simulator as a trainee reads the screen.
@@ -125,7 +125,7 @@ std::unique_ptr<IgtlServer> open_device(const RunOptions& o, const Scenario& sc)
     if (e.field() == "port") throw InputError("run", "--port", expected);
     if (e.field() == "address") throw InputError("run", "--address", expected);
     // instruments[i]: a scenario's instrument name the protocol cannot carry.
-    throw InputError(sc.source, e.field(), expected + " (as an OpenIGTLink device name)");
+    throw InputError(sc.source, e.field() + ".name", expected + " (an OpenIGTLink device name)");
   }
 }
 

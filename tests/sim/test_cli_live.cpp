@@ -234,6 +234,16 @@ TEST(RunCli, BadDeviceOptionsExitWithTwo) {
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << c.args << "\n" << r.err;
   }
   ::close(busy);
+
+  // A scenario instrument name the protocol cannot carry (at most 14 characters).
+  std::string text = slurp(d / "s.json");
+  for (auto at = text.find("\"wire\""); at != std::string::npos; at = text.find("\"wire\"", at))
+    text.replace(at, 6, "\"a_very_long_wire\"");
+  std::ofstream(d / "long.json") << text;
+  const CliResult r = run_cli("run " + (d / "long.json").string() +
+                              " --no-frames --device igtl --port 0 --out " + (d / "out").string());
+  EXPECT_EQ(r.status, 2) << r.out << r.err;
+  EXPECT_NE(r.err.find("long.json: instruments[0].name"), std::string::npos) << r.err;
 }
 
 }  // namespace
