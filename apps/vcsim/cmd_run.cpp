@@ -1,10 +1,14 @@
 // `vcsim run SCENARIO --out DIR`: a procedure headless. Loads the scenario, steps physics at its
 // dt, renders fluoroscopy at its frame rate into DIR/frames/*.png (and DIR/run.mp4 when ffmpeg
-// is installed), writes DIR/metrics.json, and shows a progress bar on a terminal.
+// is installed), writes DIR/metrics.json, and shows a progress bar on a terminal. The input is
+// the scenario's timeline or autopilot, or a live device (`--device igtl`: an OpenIGTLink
+// server, paced to the wall clock). SIGINT and SIGTERM end a run cleanly, with its report.
 #include <unistd.h>
 
+#include <atomic>
 #include <cmath>
 #include <condition_variable>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <deque>
@@ -40,7 +44,90 @@ struct RunOptions {
   bool quiet = false;
   bool trace = false;
   double time_limit_s = 0.0;  // 0: the scenario's
+  std::string device;         // "" (the scenario's input) or "igtl"
+  int port = 18944;
+  bool port_given = false;
+  std::string address = "127.0.0.1";
+  bool address_given = false;
+  bool realtime = false;
 };
+
+// Set by SIGINT/SIGTERM, read by the run loop (lock-free, so the handler only stores a flag).
+std::atomic<bool> g_stop{false};
+static_assert(std::atomic<bool>::is_always_lock_free);
+
+extern "C" void on_stop_signal(int) {
+  g_stop.store(true, std::memory_order_relaxed);
+}
+
+// Installs on_stop_signal for the life of a run. SA_RESETHAND: a second Ctrl-C kills at once,
+// for a user who does not want to wait for the last frames.
+class StopOnSignal {
+ public:
+  StopOnSignal() {
+    g_stop.store(false);
+    struct sigaction sa {};
+    sa.sa_handler = on_stop_signal;
+    sigemptyset(&sa.sa_mask);
+    sa.sa_flags = SA_RESETHAND;
+    sigaction(SIGINT, &sa, &old_int_);
+    sigaction(SIGTERM, &sa, &old_term_);
+  }
+  ~StopOnSignal() {
+    sigaction(SIGINT, &old_int_, nullptr);
+    sigaction(SIGTERM, &old_term_, nullptr);
+  }
+  StopOnSignal(const StopOnSignal&) = delete;
+  StopOnSignal& operator=(const StopOnSignal&) = delete;
+
+ private:
+  struct sigaction old_int_ = {};
+  struct sigaction old_term_ = {};
+};
+
+// The autopilot as an input source: it reads the simulator as a trainee reads the screen.
+class AutopilotInput : public InputSource {
+ public:
+  AutopilotInput(Autopilot& pilot, const Simulator& sim) : pilot_(pilot), sim_(sim) {}
+  void poll(double, DeviceCommands& out) override { pilot_.command(sim_, out); }
+
+ private:
+  Autopilot& pilot_;
+  const Simulator& sim_;
+};
+
+// The live device named by --device, checked before the scene is built so that a bad option or
+// a busy port fails at once.
+std::unique_ptr<IgtlServer> open_device(const RunOptions& o, const Scenario& sc) {
+  if (o.device.empty()) {
+    if (o.port_given) throw InputError("run", "--port", "expected only with --device igtl");
+    if (o.address_given) throw InputError("run", "--address", "expected only with --device igtl");
+    return nullptr;
+  }
+  if (o.device != "igtl")
+    throw InputError("run", "--device", "expected igtl (OpenIGTLink), got '" + o.device + "'");
+  if (o.port < 0 || o.port > 65535)
+    throw InputError(
+        "run", "--port",
+        "expected a TCP port 0-65535 (0: any free port), got " + std::to_string(o.port));
+  IgtlServerOptions io;
+  io.address = o.address;
+  io.port = o.port;
+  io.instruments.clear();
+  for (const ScenarioInstrument& si : sc.instruments) io.instruments.push_back(si.name);
+  try {
+    return std::make_unique<IgtlServer>(io);
+  } catch (const InputError& e) {
+    // The server names its own option fields; the user typed command-line options.
+    const std::string what = e.what();
+    const std::string expected = what.substr(
+        std::min(what.size(), e.source().size() + e.field().size() + 4));  // "src: field: "
+    if (e.field() == "port") throw InputError("run", "--port", expected);
+    if (e.field() == "address") throw InputError("run", "--address", expected);
+    // instruments[i]: a scenario's instrument name the protocol cannot carry.
+    throw InputError(sc.source, e.field() + ".name", expected + " (an OpenIGTLink device name)");
+  }
+}
 
 // A name in data/scenarios or a path.
 fs::path scenario_path(const std::string& arg) {
@@ -236,12 +323,79 @@ nlohmann::json shape_json(const Instrument& in) {
   return pts;
 }
 
+// What the command line does around each step: film, progress, the autopilot's log.
+class RunDisplay : public RunObserver {
+ public:
+  RunDisplay(const RunOptions& o, const Scenario& sc, Autopilot* pilot, FrameWriter* film,
+             CArmPose& pose, Vec3 centre, double frame_dt, double end_time, std::string label)
+      : o_(o),
+        sc_(sc),
+        pilot_(pilot),
+        film_(film),
+        pose_(pose),
+        centre_(centre),
+        frame_dt_(frame_dt),
+        end_time_(end_time),
+        label_(std::move(label)),
+        bar_(!o.quiet),
+        loop0_(now_us()) {}
+  bool before_step(const Simulator& sim, const DeviceCommands&) override {
+    if (!pilot_) return true;
+    if (pilot_->finished()) return false;
+    if (pilot_->status() != last_status_) {
+      last_status_ = pilot_->status();
+      if (!isatty(STDERR_FILENO) && !o_.quiet)
+        std::cerr << "run: t = " << sim.time() << " s: " << last_status_ << "\n";
+    }
+    return true;
+  }
+  void after_step(const Simulator& sim) override {
+    if (film_ && sim.time() >= next_frame_ - 1e-9) {
+      if (sc_.fluoro.follow_tip) {
+        // The operator pans the table when the leading tip nears the edge of the field (in
+        // moves, as at a real table, which also keeps the body's cached image valid), and
+        // back to the heart once the tip is there.
+        int lead = 0;
+        for (int i = 1; i < sim.num_instruments(); ++i)
+          if (sim.depth(i) > sim.depth(lead)) lead = i;
+        const Vec3 tip = sim.tip(lead);
+        const Vec3 want = (tip - centre_).norm() > 0.3 * pose_.fov ? tip : centre_;
+        if ((want - pose_.isocentre).norm() > 0.3 * pose_.fov) pose_.isocentre = want;
+      }
+      film_->push(snapshot(sim), pose_);
+      next_frame_ += frame_dt_;
+    }
+    if (sim.metrics().steps % 50 == 0) {
+      const double wall = (now_us() - loop0_) * 1e-6;
+      bar_.show(sim.time(), end_time_, pilot_ ? pilot_->status() : label_,
+                wall > 0 ? sim.time() / wall : 0.0);
+    }
+  }
+  void done() { bar_.done(); }
+
+ private:
+  const RunOptions& o_;
+  const Scenario& sc_;
+  Autopilot* pilot_;
+  FrameWriter* film_;
+  CArmPose& pose_;
+  Vec3 centre_;
+  double frame_dt_, end_time_;
+  std::string label_;
+  double next_frame_ = 0.0;
+  ProgressBar bar_;
+  std::string last_status_;
+  double loop0_;
+};
+
 int cmd_run(const RunOptions& o) {
   const fs::path file = scenario_path(o.scenario);
   Scenario sc = load_scenario(file);
   if (o.time_limit_s != 0.0)
     sc.time_limit = require_in_range(o.time_limit_s, 0.0, 3600.0, "run", "--time-limit");
   CArmPose pose = pose_of(sc);
+  // A live device replaces the scenario's timeline or autopilot.
+  std::unique_ptr<IgtlServer> device = open_device(o, sc);
   const fs::path out = o.out.empty() ? fs::path("out") / sc.name : fs::path(o.out);
   const fs::path frames_dir = out / "frames";
   std::error_code ec;
@@ -253,16 +407,23 @@ int cmd_run(const RunOptions& o) {
     if (e.path().extension() == ".png") fs::remove(e.path());
 
   std::optional<ScriptedTimeline> timeline;
-  if (!sc.timeline.empty()) timeline = ScriptedTimeline::load(sc.base_dir / sc.timeline);
+  if (!device && !sc.timeline.empty()) timeline = ScriptedTimeline::load(sc.base_dir / sc.timeline);
+  const StopOnSignal stop_on_signal;
 
   std::cerr << "run: " << sc.name << " (" << file.string() << "): building the scene\n";
   const double wall0 = now_us();
   Simulator sim(sc);
   std::unique_ptr<Autopilot> pilot;
-  if (!timeline) {
+  std::unique_ptr<AutopilotInput> pilot_input;
+  if (!device && !timeline) {
     pilot = std::make_unique<Autopilot>(sim);
     pilot->trace = o.trace;
+    pilot_input = std::make_unique<AutopilotInput>(*pilot, sim);
   }
+  InputSource& input = device     ? static_cast<InputSource&>(*device)
+                       : timeline ? static_cast<InputSource&>(*timeline)
+                                  : static_cast<InputSource&>(*pilot_input);
+  const char* input_type = device ? "igtl" : timeline ? "timeline" : "autopilot";
 
   ImageChainSettings chain;
   chain.dose = sc.fluoro.dose;
@@ -274,51 +435,28 @@ int cmd_run(const RunOptions& o) {
   const Vec3 centre = heart_centre(sim.tree());
   pose.isocentre = centre;
   const double frame_dt = 1.0 / sc.fluoro.fps;
-  double next_frame = 0.0;
-  ProgressBar bar(!o.quiet);
-  DeviceCommands cmds;
   const double end_time = timeline ? std::min(sc.time_limit, timeline->duration()) : sc.time_limit;
-  std::string last_status;
-  const double loop0 = now_us();
-  while (sim.time() < end_time - 1e-9) {
-    if (pilot) {
-      pilot->command(sim, cmds);
-      if (pilot->finished()) break;
-      if (pilot->status() != last_status) {
-        last_status = pilot->status();
-        if (!isatty(STDERR_FILENO) && !o.quiet)
-          std::cerr << "run: t = " << sim.time() << " s: " << last_status << "\n";
-      }
-    } else {
-      timeline->poll(sim.time(), cmds);
-    }
-    sim.step(cmds);
-    if (timeline) timeline->publish(sim.feedback());
-    if (film && sim.time() >= next_frame - 1e-9) {
-      if (sc.fluoro.follow_tip) {
-        // The operator pans the table when the leading tip nears the edge of the field (in
-        // moves, as at a real table, which also keeps the body's cached image valid), and
-        // back to the heart once the tip is there.
-        int lead = 0;
-        for (int i = 1; i < sim.num_instruments(); ++i)
-          if (sim.depth(i) > sim.depth(lead)) lead = i;
-        const Vec3 tip = sim.tip(lead);
-        const Vec3 want = (tip - centre).norm() > 0.3 * pose.fov ? tip : centre;
-        if ((want - pose.isocentre).norm() > 0.3 * pose.fov) pose.isocentre = want;
-      }
-      film->push(snapshot(sim), pose);
-      next_frame += frame_dt;
-    }
-    if (sim.metrics().steps % 50 == 0) {
-      const double wall = (now_us() - loop0) * 1e-6;
-      bar.show(sim.time(), end_time, pilot ? pilot->status() : "timeline",
-               wall > 0 ? sim.time() / wall : 0.0);
-    }
+
+  if (device) {
+    std::string names;
+    for (const ScenarioInstrument& si : sc.instruments)
+      names += (names.empty() ? "" : ", ") + si.name;
+    std::cerr << "run: OpenIGTLink server listening on " << o.address << ":" << device->port()
+              << " (instruments: " << names << ")" << std::endl;  // flushed: a client waits on it
   }
-  if (film) film->finish();  // the last frames are written before the clock stops
+  RunDisplay observer(o, sc, pilot.get(), film.get(), pose, centre, frame_dt, end_time, input_type);
+  RunLoopSettings loop_settings;
+  loop_settings.end_time = end_time;
+  loop_settings.realtime = device || o.realtime;
+  loop_settings.stop = &g_stop;
+  const double loop0 = now_us();
+  const RunLoopStats loop = run_loop(sim, input, loop_settings, &observer);
+  if (device) device->stop();  // the connection closes with the run; the counts are final
+  if (film) film->finish();    // the last frames are written before the clock stops
   const int frames = film ? film->frames() : 0;
   const double render_s = film ? film->render_seconds() : 0.0;
-  bar.done();
+  observer.done();
+  if (loop.stopped) std::cerr << "run: stopped by a signal at t = " << sim.time() << " s\n";
   const double wall_total = (now_us() - wall0) * 1e-6;
   const double loop_wall = (now_us() - loop0) * 1e-6;
 
@@ -378,6 +516,24 @@ int cmd_run(const RunOptions& o) {
     if (!l.reached) missed.push_back(l.name);
   }
   j["landmarks"] = lms;
+  nlohmann::json input_json = {{"type", input_type}, {"realtime", loop_settings.realtime}};
+  if (device) {
+    const IgtlStats st = device->stats();
+    input_json["address"] = o.address;
+    input_json["port"] = device->port();
+    input_json["connections"] = st.connections;
+    input_json["disconnections"] = st.disconnections;
+    input_json["messages_accepted"] = st.messages_accepted;
+    input_json["messages_dropped"] = st.messages_dropped;
+    input_json["feedback_sent"] = st.feedback_sent;
+  }
+  if (loop_settings.realtime) {
+    input_json["late_steps"] = loop.late_steps;
+    input_json["max_lag_ms"] = loop.max_lag * 1e3;
+    input_json["resyncs"] = loop.resyncs;
+  }
+  j["input"] = input_json;
+  j["stopped_by_signal"] = loop.stopped;
   if (pilot)
     j["autopilot"] = {{"finished", pilot->finished() && !pilot->failed()},
                       {"failed", pilot->failed()},
@@ -392,6 +548,7 @@ int cmd_run(const RunOptions& o) {
         sim.time() >= end_time - 1e-9 ? " (time limit " + std::to_string(end_time) + " s)" : "";
     if (pilot && pilot->failed()) outcome += " (" + pilot->status() + ")";
   }
+  if (loop.stopped) outcome += " (stopped by a signal at t = " + std::to_string(sim.time()) + " s)";
   j["outcome"] = outcome;
   j["success"] = success;
   const fs::path metrics = out / "metrics.json";
@@ -407,6 +564,17 @@ int cmd_run(const RunOptions& o) {
             << "  frames:  " << frames_dir.string() << " (" << frames << " PNG at " << sc.fluoro.fps
             << " fps)\n";
   if (!video.empty()) std::cout << "  video:   " << video << "\n";
+  if (device) {
+    const auto& in = j["input"];
+    std::cout << "  device:  OpenIGTLink on " << o.address << ":" << device->port() << ", "
+              << in["connections"].get<std::uint64_t>() << " connection(s), "
+              << in["messages_accepted"].get<std::uint64_t>() << " messages accepted ("
+              << in["messages_dropped"].get<std::uint64_t>() << " dropped), "
+              << in["feedback_sent"].get<std::uint64_t>() << " force messages sent\n";
+  }
+  if (loop_settings.realtime)
+    std::cout << "  pacing:  real time, " << loop.late_steps << " late steps (worst lag "
+              << loop.max_lag * 1e3 << " ms, " << loop.resyncs << " resyncs)\n";
   std::cout << "  metrics: " << metrics.string() << "\n";
   return success ? 0 : kNotReached;
 }
@@ -421,7 +589,17 @@ void install(CLI::App& app, int& status) {
   cmd->add_flag("--quiet", o->quiet, "No progress output");
   cmd->add_flag("--trace", o->trace, "Print what the autopilot sees and does");
   cmd->add_option("--time-limit", o->time_limit_s, "Simulated seconds before giving up");
-  cmd->callback([o, &status] { status = cmd_run(*o); });
+  cmd->add_option("--device", o->device,
+                  "Live input instead of the scenario's: igtl (an OpenIGTLink server; real time)");
+  cmd->add_option("--port", o->port, "TCP port of --device igtl (default 18944; 0: any free)");
+  cmd->add_option("--address", o->address,
+                  "IPv4 address --device igtl listens on (default 127.0.0.1)");
+  cmd->add_flag("--realtime", o->realtime, "Pace the run to the wall clock (implied by --device)");
+  cmd->callback([o, &status, cmd] {
+    o->port_given = cmd->count("--port") > 0;
+    o->address_given = cmd->count("--address") > 0;
+    status = cmd_run(*o);
+  });
 }
 
 const int kRegistered = register_command(5, install);

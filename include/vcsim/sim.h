@@ -8,6 +8,7 @@
 // Files carry units in key names (mm, deg, s, ml/s); structs hold SI.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -215,6 +216,8 @@ class Simulator {
   const std::vector<float>& contrast() const { return contrast_.concentration(); }
   const SimMetrics& metrics() const { return metrics_; }
   std::vector<ForceFeedback> feedback() const;
+  // The same into `out`, reusing its storage (no allocation once warm: for every step).
+  void feedback(std::vector<ForceFeedback>& out) const;
   bool all_landmarks_reached() const;
   // The route (centreline points) from the access to a place, m.
   std::vector<Vec3> route_to(const TreeLocation& to, double spacing = 1e-3) const;
@@ -244,6 +247,66 @@ class Simulator {
   double time_ = 0.0;
   SimMetrics metrics_;
 };
+
+// ---------------------------------------------------------------------------------------------
+// Running against an input source, as fast as possible or in real time
+
+// Paces simulated time to the wall clock. wait(t) sleeps (never spins) until the wall clock has
+// run t - t0 seconds since the first call (t0 its argument), so a paced run never gets ahead of
+// real time. When the caller is behind, wait() returns at once and records the lag; a step is
+// late when it starts more than one step behind. A lag beyond `max_catch_up` (a stall: swapping,
+// a debugger, a physics slower than real time) is not made up: the schedule moves to now, so
+// the run goes on in real time instead of racing, and the move is counted as a resync.
+class RealTimePacer {
+ public:
+  explicit RealTimePacer(double step_s, double max_catch_up_s = 0.25);
+  void wait(double sim_time);  // s
+  std::int64_t late_steps() const { return late_; }
+  double max_lag() const { return max_lag_; }  // s, the largest lag seen (before any resync)
+  std::int64_t resyncs() const { return resyncs_; }
+
+ private:
+  double step_, max_catch_up_;
+  bool started_ = false;
+  double origin_us_ = 0.0;  // wall clock (now_us) at simulated time 0
+  std::int64_t late_ = 0, resyncs_ = 0;
+  double max_lag_ = 0.0;
+};
+
+struct RunLoopSettings {
+  double end_time = 0.0;       // s simulated; the loop ends when the simulator reaches it
+  bool realtime = false;       // pace to the wall clock (RealTimePacer)
+  double max_catch_up = 0.25;  // s, see RealTimePacer
+  // When set (a signal handler may set it: lock-free), the loop ends before the next step.
+  const std::atomic<bool>* stop = nullptr;
+};
+
+struct RunLoopStats {
+  std::int64_t steps = 0;
+  std::int64_t late_steps = 0;  // real time only (RealTimePacer)
+  double max_lag = 0.0;         // s
+  std::int64_t resyncs = 0;
+  bool stopped = false;  // ended by RunLoopSettings::stop
+};
+
+// What a caller does around each step (film, progress, a controller's log).
+class RunObserver {
+ public:
+  virtual ~RunObserver() = default;
+  // With the commands for the next step; false ends the run before that step.
+  virtual bool before_step(const Simulator& sim, const DeviceCommands& commands) {
+    (void)sim;
+    (void)commands;
+    return true;
+  }
+  virtual void after_step(const Simulator& sim) { (void)sim; }
+};
+
+// Steps `sim` until settings.end_time, *settings.stop or the observer says so: per step, waits for
+// the wall clock (real time), polls `input` for the commands, steps, and publishes the hub forces
+// back to `input`. Allocates nothing per step once warm (besides what the observer does).
+RunLoopStats run_loop(Simulator& sim, InputSource& input, const RunLoopSettings& settings,
+                      RunObserver* observer = nullptr);
 
 // ---------------------------------------------------------------------------------------------
 // Autopilot

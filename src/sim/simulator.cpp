@@ -207,6 +207,15 @@ std::vector<ForceFeedback> Simulator::feedback() const {
   return out;
 }
 
+void Simulator::feedback(std::vector<ForceFeedback>& out) const {
+  out.resize(insts_.size());
+  for (std::size_t i = 0; i < insts_.size(); ++i) {
+    out[i].name = sc_.instruments[i].name;  // same names every step: no allocation
+    out[i].axial_force_n = insts_[i].drive.axial_force;
+    out[i].torque_nm = insts_[i].drive.torque;
+  }
+}
+
 bool Simulator::all_landmarks_reached() const {
   for (const LandmarkRecord& l : metrics_.landmarks)
     if (!l.reached) return false;

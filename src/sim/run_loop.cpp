@@ -1,0 +1,68 @@
+// The loop that connects a Simulator to an InputSource (timeline, autopilot, OpenIGTLink), at
+// full speed or paced to the wall clock for a live device.
+#include <algorithm>
+#include <chrono>
+#include <thread>
+
+#include "vcsim/core.h"
+#include "vcsim/sim.h"
+
+namespace vcsim {
+
+RealTimePacer::RealTimePacer(double step_s, double max_catch_up_s)
+    : step_(step_s), max_catch_up_(max_catch_up_s) {}
+
+void RealTimePacer::wait(double sim_time) {
+  const double now = now_us();
+  if (!started_) {
+    started_ = true;
+    origin_us_ = now - sim_time * 1e6;
+    return;
+  }
+  const double due = origin_us_ + sim_time * 1e6;
+  if (now < due) {
+    // Absolute deadlines: oversleeping one step (the kernel's timer slack) is not carried over.
+    using namespace std::chrono;
+    const auto until = steady_clock::time_point(
+        duration_cast<steady_clock::duration>(duration<double, std::micro>(due)));
+    std::this_thread::sleep_until(until);
+    return;
+  }
+  const double lag = (now - due) * 1e-6;
+  max_lag_ = std::max(max_lag_, lag);
+  if (lag > step_) ++late_;
+  if (lag > max_catch_up_) {
+    origin_us_ += lag * 1e6;
+    ++resyncs_;
+  }
+}
+
+RunLoopStats run_loop(Simulator& sim, InputSource& input, const RunLoopSettings& settings,
+                      RunObserver* observer) {
+  RunLoopStats stats;
+  RealTimePacer pacer(sim.scenario().dt, settings.max_catch_up);
+  DeviceCommands cmds;
+  std::vector<ForceFeedback> feedback;
+  const double dt = sim.scenario().dt;
+  while (sim.time() < settings.end_time - 1e-9) {
+    if (settings.stop && settings.stop->load(std::memory_order_relaxed)) {
+      stats.stopped = true;
+      break;
+    }
+    // The step computes the state at t + dt: not before the wall clock gets there.
+    if (settings.realtime) pacer.wait(sim.time() + dt);
+    input.poll(sim.time(), cmds);
+    if (observer && !observer->before_step(sim, cmds)) break;
+    sim.step(cmds);
+    ++stats.steps;
+    sim.feedback(feedback);
+    input.publish(feedback);
+    if (observer) observer->after_step(sim);
+  }
+  stats.late_steps = pacer.late_steps();
+  stats.max_lag = pacer.max_lag();
+  stats.resyncs = pacer.resyncs();
+  return stats;
+}
+
+}  // namespace vcsim
