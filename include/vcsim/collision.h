@@ -130,6 +130,20 @@ struct SphereQuerySettings {
   double escape_distance = 0.0;
 };
 
+// The leaves near one sphere, remembered between queries (temporal coherence, as a Verlet list
+// of leaves): every leaf whose box lies within `reach` of `centre` is in `leaves`. A later sphere
+// of search radius s at c needs no traversal while |c - centre| + s <= reach, since every leaf it
+// can touch is listed. Valid for the tree's boxes as they were when it was filled: after a refit
+// (a moving wall) call clear(). Plain data, no allocation.
+struct LeafCache {
+  static constexpr int kCapacity = 32;
+  Vec3 centre = Vec3::Zero();
+  double reach = -1.0;  // m; < 0: empty
+  int count = 0;
+  std::array<int, kCapacity> leaves{};
+  void clear() { reach = -1.0; }
+};
+
 class AabbTree {
  public:
   AabbTree() = default;
@@ -144,6 +158,13 @@ class AabbTree {
 
   // Contact of one sphere (centre, radius in m) with the mesh the tree was built on.
   SphereContact query_sphere(const TriangleMesh& mesh, const Vec3& centre, double radius,
+                             const SphereQuerySettings& settings = {}) const;
+
+  // The same contact through a leaf cache: reuses `cache` when it covers the sphere, otherwise
+  // refills it by a traversal reaching `slack` m further (a sphere that moves less than `slack`
+  // between queries then skips the traversal). Results equal query_sphere's exactly.
+  SphereContact query_sphere(const TriangleMesh& mesh, const Vec3& centre, double radius,
+                             double slack, LeafCache& cache,
                              const SphereQuerySettings& settings = {}) const;
 
   // Batch query for N spheres into preallocated outputs: out[i] for centres[i], radii[i]

@@ -22,6 +22,15 @@ class VesselWall {
   // Contact of each sphere with the wall (see AabbTree::query_spheres). Allocates nothing.
   virtual void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
                              std::span<SphereContact> out) = 0;
+  // The same with a leaf cache per sphere (see LeafCache), refilled reaching `slack` m further.
+  // A wall that is not one static tree ignores the caches (the default).
+  virtual void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                             std::span<LeafCache* const> caches, double slack,
+                             std::span<SphereContact> out) {
+    (void)caches;
+    (void)slack;
+    query_spheres(centres, radii, out);
+  }
   // Velocity of the wall (m/s) at a contact the last query returned; zero for a static wall.
   virtual Vec3 velocity(const SphereContact& hit) const;
   // Bound on the wall's speed anywhere (m/s), 0 for a static wall. Lets the contact detection
@@ -34,6 +43,9 @@ class StaticWall final : public VesselWall {
  public:
   StaticWall(const TriangleMesh& mesh, const AabbTree& tree) : mesh_(&mesh), tree_(&tree) {}
   void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                     std::span<SphereContact> out) override;
+  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                     std::span<LeafCache* const> caches, double slack,
                      std::span<SphereContact> out) override;
 
  private:
@@ -97,15 +109,17 @@ struct Instrument {
   // the owner sets and clears it, e.g. a wire waiting on the table).
   bool parked = false;
   // Contact scratch (sized once).
-  std::vector<SphereContact> hits;      // (n)
-  std::vector<Vec3> query_centre;       // (n) where each node was last queried
-  std::vector<double> clearance;        // (n) wall-free radius around query_centre (0: unknown)
-  std::vector<NodeContact> contacts;    // active contacts, capacity n
-  std::vector<int> query_nodes;         // (n) nodes queried this step
-  std::vector<Vec3> query_points;       // (n)
-  std::vector<double> query_radii;      // (n)
-  std::vector<unsigned char> sheathed;  // (n) 1: inside another instrument's lumen this step
-  double wall_travel = 0.0;             // wall motion bound accumulated since the queries
+  std::vector<SphereContact> hits;       // (n)
+  std::vector<Vec3> query_centre;        // (n) where each node was last queried
+  std::vector<double> clearance;         // (n) wall-free radius around query_centre (0: unknown)
+  std::vector<NodeContact> contacts;     // active contacts, capacity n
+  std::vector<int> query_nodes;          // (n) nodes queried this step
+  std::vector<Vec3> query_points;        // (n)
+  std::vector<double> query_radii;       // (n)
+  std::vector<LeafCache> leaf_cache;     // (n) wall leaves near each node (static walls)
+  std::vector<LeafCache*> query_caches;  // (n) the queried nodes' caches
+  std::vector<unsigned char> sheathed;   // (n) 1: inside another instrument's lumen this step
+  double wall_travel = 0.0;              // wall motion bound accumulated since the queries
 };
 
 // Builds a driven instrument lying on the sheath axis with `depth` inserted. The rod's own
@@ -121,6 +135,7 @@ struct SolverSettings {
   double contact_margin = 2e-4;         // m, speculative: contacts within this gap are solved
   double penetration_correction = 0.5;  // fraction of a penetration removed per step
   double coherence_margin = 0.6e-3;     // m, query radius beyond contact reach (for skipping)
+  double leaf_cache_slack = 0.1e-3;  // m, how far a node may move before its leaves are re-listed
   void validate(const std::string& source = "solver") const;
 };
 

@@ -185,8 +185,9 @@ double vertex_angle(const Vec3& at, const Vec3& p, const Vec3& q) {
   return std::atan2(u.cross(v).norm(), u.dot(v));
 }
 
-void test_triangle(const TriangleMesh& mesh, int t, const Vec3& centre, double radius,
-                   double search2, Accumulator& acc) {
+[[gnu::always_inline]] inline void test_triangle(const TriangleMesh& mesh, int t,
+                                                 const Vec3& centre, double radius, double search2,
+                                                 Accumulator& acc) {
   const auto& tri = mesh.triangles[t];
   const Vec3& a = mesh.vertices[tri[0]];
   const Vec3& b = mesh.vertices[tri[1]];
@@ -246,10 +247,19 @@ void test_triangle(const TriangleMesh& mesh, int t, const Vec3& centre, double r
   }
 }
 
-double box_distance2(const Aabb& b, const Vec3& p) {
-  const Vec3 below = (b.lo - p).cwiseMax(0.0);
-  const Vec3 above = (p - b.hi).cwiseMax(0.0);
-  return below.squaredNorm() + above.squaredNorm();
+// Squared distance from p to the box, in plain scalars: this test is most of a query's work.
+inline double box_distance2(const Aabb& b, const Vec3& p) {
+  const double* lo = b.lo.data();
+  const double* hi = b.hi.data();
+  const double* c = p.data();
+  double d2 = 0.0;
+  for (int a = 0; a < 3; ++a) {
+    const double below = lo[a] - c[a];
+    const double above = c[a] - hi[a];
+    const double out = std::max(std::max(below, above), 0.0);
+    d2 += out * out;
+  }
+  return d2;
 }
 
 }  // namespace
@@ -315,32 +325,12 @@ void AabbTree::refit(const TriangleMesh& mesh) {
 //  - normal: weighted mean of the inward normals of the triangles overlapping the sphere, or the
 //    closest feature's pseudo-normal if none overlaps (a centre just beyond the radius behind
 //    the wall) or if the mean cancels (a sphere wedged between opposite walls).
-SphereContact AabbTree::query_sphere(const TriangleMesh& mesh, const Vec3& centre, double radius,
-                                     const SphereQuerySettings& settings) const {
-  SphereContact out;
-  if (nodes_.empty()) return out;
-  const double search = radius + settings.escape_distance;
-  const double search2 = search * search;
-  Accumulator acc;
-  // Only nodes whose boxes reach the sphere are pushed: children are tested where their parent
-  // is expanded (siblings are adjacent in memory), so far subtrees cost no stack traffic.
-  if (box_distance2(nodes_[0].box, centre) > search2) return out;
-  std::array<int, kMaxDepth + 2> stack;
-  int top = 0;
-  stack[top++] = 0;
-  while (top > 0) {
-    const AabbNode& node = nodes_[stack[--top]];
-    if (node.is_leaf()) {
-      for (int k = node.first; k < node.first + node.count; ++k)
-        test_triangle(mesh, order_[k], centre, radius, search2, acc);
-      continue;
-    }
-    const int l = node.first;
-    if (box_distance2(nodes_[l].box, centre) <= search2) stack[top++] = l;
-    if (box_distance2(nodes_[l + 1].box, centre) <= search2) stack[top++] = l + 1;
-  }
-  if (acc.triangle < 0) return out;
+namespace {
 
+SphereContact finish(const TriangleMesh& mesh, const Accumulator& acc, const Vec3& centre,
+                     double radius) {
+  SphereContact out;
+  if (acc.triangle < 0) return out;
   out.distance = acc.d_min;
   out.point = acc.point;
   out.triangle = acc.triangle;
@@ -362,6 +352,80 @@ SphereContact AabbTree::query_sphere(const TriangleMesh& mesh, const Vec3& centr
     out.normal = mesh.normals[acc.triangle];
   }
   return out;
+}
+
+}  // namespace
+
+SphereContact AabbTree::query_sphere(const TriangleMesh& mesh, const Vec3& centre, double radius,
+                                     const SphereQuerySettings& settings) const {
+  if (nodes_.empty()) return {};
+  const double search = radius + settings.escape_distance;
+  const double search2 = search * search;
+  Accumulator acc;
+  // Only nodes whose boxes reach the sphere are pushed: children are tested where their parent
+  // is expanded (siblings are adjacent in memory), so far subtrees cost no stack traffic.
+  if (box_distance2(nodes_[0].box, centre) > search2) return {};
+  std::array<int, kMaxDepth + 2> stack;
+  int top = 0;
+  stack[top++] = 0;
+  while (top > 0) {
+    const AabbNode& node = nodes_[stack[--top]];
+    if (node.is_leaf()) {
+      for (int k = node.first; k < node.first + node.count; ++k)
+        test_triangle(mesh, order_[k], centre, radius, search2, acc);
+      continue;
+    }
+    const int l = node.first;
+    if (box_distance2(nodes_[l].box, centre) <= search2) stack[top++] = l;
+    if (box_distance2(nodes_[l + 1].box, centre) <= search2) stack[top++] = l + 1;
+  }
+  return finish(mesh, acc, centre, radius);
+}
+
+SphereContact AabbTree::query_sphere(const TriangleMesh& mesh, const Vec3& centre, double radius,
+                                     double slack, LeafCache& cache,
+                                     const SphereQuerySettings& settings) const {
+  if (nodes_.empty()) return {};
+  const double search = radius + settings.escape_distance;
+  const double search2 = search * search;
+  Accumulator acc;
+  auto test_leaf = [&](const AabbNode& leaf) {
+    if (box_distance2(leaf.box, centre) > search2) return;
+    for (int k = leaf.first; k < leaf.first + leaf.count; ++k)
+      test_triangle(mesh, order_[k], centre, radius, search2, acc);
+  };
+  if (cache.reach >= 0.0 && (centre - cache.centre).norm() + search <= cache.reach) {
+    for (int k = 0; k < cache.count; ++k) test_leaf(nodes_[cache.leaves[k]]);
+    return finish(mesh, acc, centre, radius);
+  }
+  // Refill: every leaf within reach of the centre, listed while the triangles are tested.
+  const double reach = search + slack;
+  const double reach2 = reach * reach;
+  cache.centre = centre;
+  cache.reach = reach;
+  cache.count = 0;
+  if (box_distance2(nodes_[0].box, centre) <= reach2) {
+    std::array<int, kMaxDepth + 2> stack;
+    int top = 0;
+    stack[top++] = 0;
+    while (top > 0) {
+      const int index = stack[--top];
+      const AabbNode& node = nodes_[index];
+      if (node.is_leaf()) {
+        if (cache.count < LeafCache::kCapacity) {
+          cache.leaves[cache.count++] = index;
+        } else {
+          cache.reach = -1.0;  // too many to list: this sphere is always traversed
+        }
+        test_leaf(node);
+        continue;
+      }
+      const int l = node.first;
+      if (box_distance2(nodes_[l].box, centre) <= reach2) stack[top++] = l;
+      if (box_distance2(nodes_[l + 1].box, centre) <= reach2) stack[top++] = l + 1;
+    }
+  }
+  return finish(mesh, acc, centre, radius);
 }
 
 void AabbTree::query_spheres(const TriangleMesh& mesh, std::span<const Vec3> centres,

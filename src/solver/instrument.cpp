@@ -118,17 +118,20 @@ void detect_contacts(Instrument& inst, VesselWall& wall, const SolverSettings& s
     // radius that buys skipping is wasted on it.
     const bool was_touching = inst.clearance[i] == 0.0 && st.steps > 0;
     inst.query_radii[nq] = reach + (was_touching ? 0.0 : set.coherence_margin);
+    inst.query_caches[nq] = &inst.leaf_cache[i];
     ++nq;
   }
   if (nq == 0) return;
   if (inst.wall_travel > 0.0) {
     // Clearances measured before the wall moved are stale for every node: start afresh.
     std::fill(inst.clearance.begin(), inst.clearance.end(), 0.0);
+    for (LeafCache& c : inst.leaf_cache) c.clear();
     inst.wall_travel = 0.0;
   }
   wall.query_spheres(std::span<const Vec3>(inst.query_points.data(), nq),
                      std::span<const double>(inst.query_radii.data(), nq),
-                     std::span<SphereContact>(inst.hits.data(), nq));
+                     std::span<LeafCache* const>(inst.query_caches.data(), nq),
+                     set.leaf_cache_slack, std::span<SphereContact>(inst.hits.data(), nq));
   for (int k = 0; k < nq; ++k) {
     const int i = inst.query_nodes[k];
     const SphereContact& h = inst.hits[k];
@@ -295,6 +298,8 @@ void size_scratch(Instrument& inst) {
   inst.query_nodes.assign(n, 0);
   inst.query_points.assign(n, Vec3::Zero());
   inst.query_radii.assign(n, 0.0);
+  inst.leaf_cache.assign(n, LeafCache{});
+  inst.query_caches.assign(n, nullptr);
   inst.sheathed.assign(n, 0);
   inst.ws.resize(inst.model);
 }
@@ -310,6 +315,13 @@ void StaticWall::query_spheres(std::span<const Vec3> centres, std::span<const do
   tree_->query_spheres(*mesh_, centres, radii, out);
 }
 
+void StaticWall::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                               std::span<LeafCache* const> caches, double slack,
+                               std::span<SphereContact> out) {
+  for (std::size_t i = 0; i < centres.size(); ++i)
+    out[i] = tree_->query_sphere(*mesh_, centres[i], radii[i], slack, *caches[i]);
+}
+
 void ContactMaterial::validate(const std::string& source) const {
   require_nonnegative(mu_static, source, "mu_static");
   require_nonnegative(mu_dynamic, source, "mu_dynamic");
@@ -323,6 +335,7 @@ void SolverSettings::validate(const std::string& source) const {
   require_nonnegative(contact_margin, source, "contact_margin");
   require_in_range(penetration_correction, 0.0, 1.0, source, "penetration_correction");
   require_nonnegative(coherence_margin, source, "coherence_margin");
+  require_nonnegative(leaf_cache_slack, source, "leaf_cache_slack");
 }
 
 Instrument make_instrument(const RodDef& def_in, const Sheath& sheath,

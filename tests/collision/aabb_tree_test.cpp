@@ -159,6 +159,52 @@ TEST(AabbTree, BatchQueryEqualsSingleQueries) {
     EXPECT_EQ(out[i].depth, tree.query_sphere(m, centres[i], 0.45e-3).depth);
 }
 
+// Spheres wandering near the wall in small random steps (an instrument node from step to step):
+// every query through a leaf cache gives exactly what a full traversal gives, whether the cache
+// was reused or refilled; both happen.
+TEST(AabbTree, LeafCacheQueriesEqualFullQueries) {
+  TriangleMesh m = make_bent_tube(bench_like_spec());
+  check_and_repair(m);
+  AabbTree tree;
+  tree.build(m);
+  std::mt19937 rng(11);
+  std::normal_distribution<double> step(0.0, 0.04e-3);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  constexpr double kSlack = 0.1e-3;
+  int reused = 0, refilled = 0, touching = 0;
+  for (int walker = 0; walker < 40; ++walker) {
+    // Start 2.2-3.2 mm off the axis of the straight part (the wall is at 3 mm).
+    const double a = 3.14159 * u(rng);
+    const double r = 2.7e-3 + 0.5e-3 * u(rng);
+    Vec3 c(r * std::cos(a), r * std::sin(a), 10e-3 + 5e-3 * u(rng));
+    const double radius = 0.45e-3 + 0.2e-3 * u(rng);
+    LeafCache cache;
+    for (int k = 0; k < 200; ++k) {
+      c += Vec3(step(rng), step(rng), step(rng));
+      const Vec3 before = cache.centre;
+      const bool had = cache.reach >= 0.0;
+      const SphereContact cached = tree.query_sphere(m, c, radius, kSlack, cache);
+      const SphereContact full = tree.query_sphere(m, c, radius);
+      if (had && cache.centre == before) {
+        ++reused;
+      } else {
+        ++refilled;
+      }
+      ASSERT_EQ(cached.touching, full.touching) << "walker " << walker << " step " << k;
+      EXPECT_EQ(cached.centre_outside, full.centre_outside);
+      EXPECT_EQ(cached.depth, full.depth);
+      EXPECT_EQ(cached.distance, full.distance);
+      EXPECT_EQ(cached.normal, full.normal);
+      EXPECT_EQ(cached.triangle, full.triangle);
+      EXPECT_EQ(cached.num_touching, full.num_touching);
+      touching += full.touching;
+    }
+  }
+  EXPECT_GT(reused, 1000);
+  EXPECT_GT(refilled, 500);
+  EXPECT_GT(touching, 1000);  // the walk does meet the wall
+}
+
 // A smooth travelling wave on the wall, like a beating vessel: refit must answer exactly as a
 // tree built from scratch on the moved vertices.
 TEST(AabbTree, RefitAfterDeformationMatchesRebuild) {
