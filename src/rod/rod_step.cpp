@@ -67,9 +67,11 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
   const Vec3* __restrict kv = md.vertex_stiffness.data();
   const Vec3* __restrict w0 = md.rest_darboux.data();
   // The frames, bending and twisting, and the parallel penalty as flat loops over plain arrays
-  // (quaternion, matrix and vector coefficients addressed directly), which the compiler turns
-  // into SIMD code across edges; each vertex's and edge's contribution is written once and the
-  // sums per node and frame are formed afterwards, so no loop carries a dependency.
+  // (quaternion, matrix and vector coefficients addressed directly); each vertex's and edge's
+  // contribution is written once and the sums per node and frame are formed afterwards, so no
+  // loop carries a dependency. GCC 12 vectorises only the node loop (4): the frame loops read
+  // interleaved groups of 4 and 9 doubles it does not vectorise (-fopt-info-vec-missed), so
+  // they run as scalar code; a structure-of-arrays copy of the frames would be the next step.
   static_assert(sizeof(Quat) == 4 * sizeof(double) && sizeof(Vec3) == 3 * sizeof(double) &&
                 sizeof(Mat3) == 9 * sizeof(double));
   const double* __restrict Q = q[0].coeffs().data();  // (x, y, z, w) per frame
@@ -242,7 +244,7 @@ void rod_integrate_velocities(const RodModel& md, const RodSettings& s, RodState
     const Vec3 tau_body = rot[j].transpose() * tau[j];
     // Prescribed frames (free = 0) keep their angular velocity.
     const Vec3 w_new = integrate_spin(w[j], inertia[j], inv_inertia[j], tau_body, dt);
-    if (free[j] != 0.0) w[j] = w_new;
+    w[j] = free[j] != 0.0 ? w_new : w[j];  // a select, not a branch: the loop stays SIMD
   }
 }
 
