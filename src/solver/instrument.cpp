@@ -199,51 +199,87 @@ double project_on_edge(const RodState& outer, int k, const Vec3& p, double& t) {
   return (a + t * ab - p).squaredNorm();
 }
 
-// Pairs every free inner node inside the outer instrument's inserted length with the outer edge
-// at the same inserted arc length (refined to the geometrically closest neighbour) and records
-// the radial excess beyond the clearance. Marks those inner nodes sheathed (no wall query).
-void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
-                     const SolverSettings& set) {
-  cp.contacts.clear();
-  std::fill(in.sheathed.begin(), in.sheathed.end(), 0);
+// Offset of p from the closest point of the outer centreline near edge k (the edge at the same
+// inserted arc length): walks to the geometrically closest edge, since the two centrelines' arc
+// lengths drift apart by more than an edge where the catheter is compressed or the wire takes
+// the inside of a bend, and an edge whose projection is clamped at its end would pin the node to
+// that vertex along the axis instead of holding it radially. The offset is perpendicular to the
+// edge inside it, toward the vertex where the projection is clamped (at a polyline bend).
+Vec3 offset_from_outer(const RodState& out, int m, int k, const Vec3& p, int& best,
+                       double& best_t) {
+  double t = 0.0;
+  best = k;
+  double best_d2 = project_on_edge(out, k, p, best_t);
+  for (int step : {-1, 1}) {
+    for (int kk = best + step; kk >= 0 && kk < m; kk += step) {
+      const double d2 = project_on_edge(out, kk, p, t);
+      if (d2 >= best_d2) break;
+      best_d2 = d2;
+      best = kk;
+      best_t = t;
+    }
+  }
+  const Vec3& a = out.x[best];
+  return p - (a + best_t * (out.x[best + 1] - a));
+}
+
+// Calls f(i, k) for every free inner node i inside the outer instrument's inserted length, with
+// k the outer edge at the same inserted arc length.
+template <class F>
+void for_each_sheathed(const Instrument& in, const Instrument& out, F&& f) {
   const RodModel& mi = in.model;
   const RodModel& mo = out.model;
-  cp.clearance = std::max(0.0, mo.inner_radius[mo.m - 1] - mi.outer_radius[0]);
   const double in_offset = mi.length - in.drive.depth;    // s at the access point, inner
   const double out_offset = mo.length - out.drive.depth;  // s at the access point, outer
-  const double dt = set.rod.dt;
   int k = 0;
   for (int i = in.drive.first_free; i < mi.n; ++i) {
     const double sigma = mi.node_s[i] - in_offset;  // inserted arc length of this node
     if (sigma <= 0.0 || sigma > out.drive.depth) continue;
-    in.sheathed[i] = 1;
     const double s_out = sigma + out_offset;
     while (k + 1 < mo.m && mo.node_s[k + 1] <= s_out) ++k;
-    const Vec3& p = in.state.x[i];
-    double t = 0.0, best_t = 0.0;
-    int best = k;
-    double best_d2 = project_on_edge(out.state, k, p, best_t);
-    for (int kk : {k - 1, k + 1}) {
-      if (kk < 0 || kk >= mo.m) continue;
-      const double d2 = project_on_edge(out.state, kk, p, t);
-      if (d2 < best_d2) {
-        best_d2 = d2;
-        best = kk;
-        best_t = t;
-      }
-    }
-    // Offset to the closest point of the outer centreline: perpendicular to the edge inside it,
-    // toward the vertex where the projection is clamped (at a bend of the polyline).
-    const Vec3 a = out.state.x[best], b = out.state.x[best + 1];
-    const Vec3 off = p - (a + best_t * (b - a));
-    const double r = off.norm();
-    if (r < 1e-12) continue;
-    const Vec3 rel_v =
-        in.state.v[i] - ((1 - best_t) * out.state.v[best] + best_t * out.state.v[best + 1]);
-    const double excess = r - cp.clearance;
-    if (excess < -(set.contact_margin + rel_v.norm() * dt)) continue;
-    cp.contacts.push_back({i, best, best_t, off / r, excess, 0.0, Vec3::Zero()});
+    f(i, k);
   }
+}
+
+// Pairs every free inner node inside the outer instrument's inserted length with the closest
+// outer edge and records the radial excess beyond the clearance. Marks those inner nodes
+// sheathed (no wall query).
+void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
+                     const SolverSettings& set) {
+  cp.contacts.clear();
+  std::fill(in.sheathed.begin(), in.sheathed.end(), 0);
+  const RodModel& mo = out.model;
+  cp.clearance = std::max(0.0, mo.inner_radius[mo.m - 1] - in.model.outer_radius[0]);
+  const double dt = set.rod.dt;
+  for_each_sheathed(in, out, [&](int i, int k) {
+    in.sheathed[i] = 1;
+    int best = k;
+    double t = 0.0;
+    const Vec3 off = offset_from_outer(out.state, mo.m, k, in.state.x[i], best, t);
+    const double r = off.norm();
+    if (r < 1e-12) return;
+    const Vec3 rel_v = in.state.v[i] - ((1 - t) * out.state.v[best] + t * out.state.v[best + 1]);
+    const double excess = r - cp.clearance;
+    if (excess < -(set.contact_margin + rel_v.norm() * dt)) return;
+    cp.contacts.push_back({i, best, t, off / r, excess, 0.0, Vec3::Zero()});
+  });
+}
+
+// After the positions: moves every sheathed inner node that ended the step beyond the clearance
+// radially back onto it. The velocity-level constraint bounds only the normal part of the
+// relative motion along the normal of the step's start; a fast tangential relative motion (a
+// catheter tip whipping round a slow wire: up to 2 clearances per step in the pair scene) leaves
+// the node outside by sqrt(c^2 + (v_t dt)^2) - c. The catheter is taken as fixed here, so one
+// pass is exact; the velocities are left alone (the next step's constraint sees a node at the
+// clearance).
+void project_coupling(const Coupling& cp, Instrument& in, const Instrument& out) {
+  for_each_sheathed(in, out, [&](int i, int k) {
+    int best = k;
+    double t = 0.0;
+    const Vec3 off = offset_from_outer(out.state, out.model.m, k, in.state.x[i], best, t);
+    const double r = off.norm();
+    if (r > cp.clearance) in.state.x[i] -= ((r - cp.clearance) / r) * off;
+  });
 }
 
 // One projected Gauss-Seidel sweep over the concentric constraints: the inner node may not move
@@ -430,11 +466,19 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
     }
   }
   const double t5 = tick();
-  // 6. positions
+  // 6. positions, then the coupled wires exactly into their catheters' lumens
   for (Instrument& in : insts) {
     if (in.parked) continue;
     rod_integrate_positions(in.model, rs, in.state, in.ws);
     remove_contact_bias(in, set);
+  }
+  for (Coupling& c : couplings) {
+    if (!insts[c.inner].parked && !insts[c.outer].parked) {
+      project_coupling(c, insts[c.inner], insts[c.outer]);
+    }
+  }
+  for (Instrument& in : insts) {
+    if (in.parked) continue;
     if (in.driven) {
       drive_end(in);
       drive_feedback(in, rs);
