@@ -3,6 +3,7 @@
 // (physics.md section 6).
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 
 #include "vcsim/solver.h"
 
@@ -75,20 +76,47 @@ void drive_end(Instrument& inst) {
   for (int j = 0; j + 1 < inst.drive.first_free && j < inst.model.m; ++j) inst.state.q[j] = held;
 }
 
-// Force and torque at the hand: what the rest of the rod exerts on the held part (internal
-// forces and constraint impulses on held nodes and frames), gravity and applied loads excluded.
-void drive_feedback(Instrument& inst, const RodSettings& s) {
+// Force and torque at the hand (physics.md 6.1): the loads the world puts on the inserted part,
+// carried back to the hand as they would be in equilibrium: wall contact impulses (less the
+// penetration fix-up taken back after the step), coupling impulses (on held nodes too), applied
+// loads and gravity on the free nodes, and their moments about the sheath axis. This equals what
+// the free part exerts across the boundary on the held part less the free part's inertia and
+// mass-proportional drag, both artefacts of mass scaling, and never sees the held part's own
+// (scaled) mass. An optional first-order low-pass smooths it for a haptic device.
+void drive_feedback(Instrument& inst, const SolverSettings& set) {
   const RodModel& md = inst.model;
-  const RodWorkspace& ws = inst.ws;
   const RodState& st = inst.state;
-  Vec3 f = Vec3::Zero(), tau = Vec3::Zero();
-  for (int i = 0; i < inst.drive.first_free; ++i) {
-    f += ws.force[i] - md.node_mass[i] * s.gravity - st.f_ext[i] + ws.node_impulse[i] / s.dt;
+  const double dt = set.rod.dt;
+  const Vec3 a = inst.sheath.access_point;
+  Vec3 f = Vec3::Zero(), m = Vec3::Zero();
+  auto add = [&](int i, const Vec3& fi) {
+    f += fi;
+    m += (st.x[i] - a).cross(fi);
+  };
+  for (const NodeContact& c : inst.contacts) {
+    add(c.node, ((c.lambda_n - c.lambda_bias) * c.normal + c.lambda_t) / dt);
   }
-  for (int j = 0; j + 1 < inst.drive.first_free && j < md.m; ++j) tau += ws.torque[j];
+  for (int i = 0; i < md.n; ++i) {
+    if (inst.coupling_impulse[i] != Vec3::Zero()) add(i, inst.coupling_impulse[i] / dt);
+  }
+  for (int i = inst.drive.first_free; i < md.n; ++i) {
+    add(i, md.node_mass[i] * set.rod.gravity + st.f_ext[i]);
+  }
+  for (int j = std::max(0, inst.drive.first_free - 1); j < md.m; ++j) m += st.tau_ext[j];
+  // The hand holds the rod against these loads: > 0 when they push the rod back out.
   const Vec3 axis = inst.sheath.frame * Vec3::UnitZ();
-  inst.drive.axial_force = -f.dot(axis);
-  inst.drive.torque = -tau.dot(axis);
+  DriveState& dr = inst.drive;
+  dr.axial_force_raw = -f.dot(axis);
+  dr.torque_raw = -m.dot(axis);
+  if (set.feedback_cutoff_hz > 0.0 && st.steps > 0) {
+    // y += (1 - exp(-2 pi fc dt)) (x - y): the exact step response of a first-order filter.
+    const double g = 1.0 - std::exp(-2.0 * std::numbers::pi * set.feedback_cutoff_hz * dt);
+    dr.axial_force += g * (dr.axial_force_raw - dr.axial_force);
+    dr.torque += g * (dr.torque_raw - dr.torque);
+  } else {
+    dr.axial_force = dr.axial_force_raw;
+    dr.torque = dr.torque_raw;
+  }
 }
 
 // --- contacts ------------------------------------------------------------------------------------
@@ -176,15 +204,19 @@ void solve_contacts(Instrument& inst, const SolverSettings& set) {
   }
 }
 
-// The penetration fix-up velocity moved the node out; it must not stay as a bounce.
+// The penetration fix-up velocity moved the node out; it must not stay as a bounce. The impulse
+// taken back is kept (lambda_bias): it was a position correction, not a load.
 void remove_contact_bias(Instrument& inst, const SolverSettings& set) {
   const double dt = set.rod.dt;
-  for (const NodeContact& c : inst.contacts) {
+  for (NodeContact& c : inst.contacts) {
     if (c.depth <= 0.0) continue;
     Vec3& v = inst.state.v[c.node];
     const double vn = (v - c.wall_velocity).dot(c.normal);
     const double bias = set.penetration_correction * c.depth / dt;
-    if (vn > 0.0) v -= std::min(vn, bias) * c.normal;
+    if (vn <= 0.0) continue;
+    const double removed = std::min(vn, bias);
+    v -= removed * c.normal;
+    c.lambda_bias = removed / inst.ws.inv_mass[c.node];
   }
 }
 
@@ -302,6 +334,9 @@ void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverS
       in.ws.node_impulse[c.node] += impulse;
       out.ws.node_impulse[c.segment] -= (1 - c.t) * impulse;
       out.ws.node_impulse[c.segment + 1] -= c.t * impulse;
+      in.coupling_impulse[c.node] += impulse;
+      out.coupling_impulse[c.segment] -= (1 - c.t) * impulse;
+      out.coupling_impulse[c.segment + 1] -= c.t * impulse;
     };
     // Radial: v_rel . n <= -excess / dt: a violation is removed in full (a wire outside its
     // catheter is visible at once), a gap may close exactly.
@@ -332,6 +367,7 @@ void size_scratch(Instrument& inst) {
   inst.query_points.assign(n, Vec3::Zero());
   inst.query_radii.assign(n, 0.0);
   inst.sheathed.assign(n, 0);
+  inst.coupling_impulse.assign(n, Vec3::Zero());
   inst.ws.resize(inst.model);
 }
 
@@ -359,6 +395,7 @@ void SolverSettings::validate(const std::string& source) const {
   require_nonnegative(contact_margin, source, "contact_margin");
   require_in_range(penetration_correction, 0.0, 1.0, source, "penetration_correction");
   require_nonnegative(coherence_margin, source, "coherence_margin");
+  require_nonnegative(feedback_cutoff_hz, source, "feedback_cutoff_hz");
 }
 
 Instrument make_instrument(const RodDef& def_in, const Sheath& sheath,
@@ -418,6 +455,7 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   for (std::size_t k = 0; k < insts.size(); ++k) {
     if (insts[k].parked) continue;
     rod_begin_step(insts[k].model, insts[k].ws);
+    std::fill(insts[k].coupling_impulse.begin(), insts[k].coupling_impulse.end(), Vec3::Zero());
     if (insts[k].driven) drive_begin(insts[k], cmds[k], rs.dt);
   }
   const double t1 = tick();
@@ -481,7 +519,7 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
     if (in.parked) continue;
     if (in.driven) {
       drive_end(in);
-      drive_feedback(in, rs);
+      drive_feedback(in, set);
     }
     rod_end_step(in.model, rs, in.state, in.ws);
   }
