@@ -298,17 +298,21 @@ void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
 }
 
 // After the positions: moves every sheathed inner node that ended the step beyond the clearance
-// radially back onto it. The velocity-level constraint bounds only the normal part of the
-// relative motion along the normal of the step's start; a fast tangential relative motion (a
-// catheter tip whipping round a slow wire: up to 2 clearances per step in the pair scene) leaves
-// the node outside by sqrt(c^2 + (v_t dt)^2) - c. The catheter is taken as fixed here, so one
-// pass is exact; the velocities are left alone (the next step's constraint sees a node at the
-// clearance).
+// radially back onto it (except past the catheter's tip). The velocity-level constraint bounds only
+// the normal part of the relative motion along the normal of the step's start; a fast tangential
+// relative motion (a catheter tip whipping round a slow wire: up to 2 clearances per step in the
+// pair scene) leaves the node outside by sqrt(c^2 + (v_t dt)^2) - c. The catheter is taken as fixed
+// here, so one pass is exact; the velocities are left alone (the next step's constraint sees a node
+// at the clearance).
 void project_coupling(const Coupling& cp, Instrument& in, const Instrument& out) {
   for_each_sheathed(in, out, [&](int i, int k) {
     int best = k;
     double t = 0.0;
     const Vec3 off = offset_from_outer(out.state, out.model.m, k, in.state.x[i], best, t);
+    // Closest to the catheter's distal end: the node has left through the tip (on the inside of
+    // a curve the wire's path is shorter than the catheter's centreline), and pulling it back
+    // onto the tip would pin it there along the axis.
+    if (best == out.model.m - 1 && t >= 1.0) return;
     const double r = off.norm();
     if (r > cp.clearance) in.state.x[i] -= ((r - cp.clearance) / r) * off;
   });

@@ -20,6 +20,12 @@ double segment_distance(const Vec3& a, const Vec3& b, const Vec3& p) {
   return (a + t * ab - p).norm();
 }
 
+// A wire node counts as inside the catheter from this far behind the catheter's tip (by inserted
+// arc length): on the inside of the JL4's curves (250 deg in all) the wire's path is up to
+// c_l x 4.4 rad = 1.9 mm shorter than the catheter's centreline, so a node nearer the tip by arc
+// length may already lie beyond the tip, where the coupling lets it go.
+constexpr double kTipMargin = 2.5e-3;
+
 // Worst radial offset of the wire's nodes inside the catheter from the catheter's centreline
 // (brute force over the catheter's edges: independent of the coupling's own bookkeeping).
 double worst_offset(const PairScene& sc) {
@@ -28,7 +34,7 @@ double worst_offset(const PairScene& sc) {
   double worst = 0.0;
   for (int i = w.drive.first_free; i < w.model.n; ++i) {
     const double sigma = w.model.node_s[i] - (w.model.length - w.drive.depth);
-    if (sigma <= 1e-3 || sigma > c.drive.depth - 1e-3) continue;  // inside the catheter only
+    if (sigma <= 1e-3 || sigma > c.drive.depth - kTipMargin) continue;  // inside the catheter only
     double d = 1e9;
     for (int j = std::max(0, c.drive.first_free - 2); j < c.model.m; ++j) {
       d = std::min(d, segment_distance(c.state.x[j], c.state.x[j + 1], w.state.x[i]));
