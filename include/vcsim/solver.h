@@ -85,6 +85,10 @@ struct DriveState {
   double axial_force = 0.0;  // N at the hand along the axis, > 0 when the rod resists insertion
   double torque = 0.0;       // N m at the hand about the axis, > 0 when it resists positive roll
   int first_free = 0;        // first node inside the body
+  // The hand force and torque before the optional low-pass (SolverSettings::feedback_cutoff_hz;
+  // physics.md 6.1); equal to axial_force and torque without it.
+  double axial_force_raw = 0.0;  // N
+  double torque_raw = 0.0;       // N m
 };
 
 // One contact of a node with the wall, solved in the block iterations.
@@ -95,6 +99,7 @@ struct NodeContact {
   double lambda_n = 0.0;              // accumulated normal impulse (N s)
   Vec3 lambda_t = Vec3::Zero();       // accumulated friction impulse (N s)
   Vec3 wall_velocity = Vec3::Zero();  // of the wall at the contact (m/s)
+  double lambda_bias = 0.0;  // part of lambda_n taken back after the step (penetration fix-up)
 };
 
 struct Instrument {
@@ -119,6 +124,7 @@ struct Instrument {
   std::vector<LeafCache> leaf_cache;     // (n) wall leaves near each node (static walls)
   std::vector<LeafCache*> query_caches;  // (n) the queried nodes' caches
   std::vector<unsigned char> sheathed;   // (n) 1: inside another instrument's lumen this step
+  std::vector<Vec3> coupling_impulse;    // (n) coaxial coupling impulses on each node this step
   double wall_travel = 0.0;              // wall motion bound accumulated since the queries
 };
 
@@ -136,6 +142,9 @@ struct SolverSettings {
   double penetration_correction = 0.5;  // fraction of a penetration removed per step
   double coherence_margin = 0.6e-3;     // m, query radius beyond contact reach (for skipping)
   double leaf_cache_slack = 0.1e-3;  // m, how far a node may move before its leaves are re-listed
+  // Optional first-order low-pass of the hand force and torque for a haptic device (Hz);
+  // 0 reports the raw signal.
+  double feedback_cutoff_hz = 0.0;
   void validate(const std::string& source = "solver") const;
 };
 

@@ -3,6 +3,7 @@
 // (physics.md section 6).
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 
 #include "vcsim/solver.h"
 
@@ -75,20 +76,47 @@ void drive_end(Instrument& inst) {
   for (int j = 0; j + 1 < inst.drive.first_free && j < inst.model.m; ++j) inst.state.q[j] = held;
 }
 
-// Force and torque at the hand: what the rest of the rod exerts on the held part (internal
-// forces and constraint impulses on held nodes and frames), gravity and applied loads excluded.
-void drive_feedback(Instrument& inst, const RodSettings& s) {
+// Force and torque at the hand (physics.md 6.1): the loads the world puts on the inserted part,
+// carried back to the hand as they would be in equilibrium: wall contact impulses (less the
+// penetration fix-up taken back after the step), coupling impulses (on held nodes too), applied
+// loads and gravity on the free nodes, and their moments about the sheath axis. This equals what
+// the free part exerts across the boundary on the held part less the free part's inertia and
+// mass-proportional drag, both artefacts of mass scaling, and never sees the held part's own
+// (scaled) mass. An optional first-order low-pass smooths it for a haptic device.
+void drive_feedback(Instrument& inst, const SolverSettings& set) {
   const RodModel& md = inst.model;
-  const RodWorkspace& ws = inst.ws;
   const RodState& st = inst.state;
-  Vec3 f = Vec3::Zero(), tau = Vec3::Zero();
-  for (int i = 0; i < inst.drive.first_free; ++i) {
-    f += ws.force[i] - md.node_mass[i] * s.gravity - st.f_ext[i] + ws.node_impulse[i] / s.dt;
+  const double dt = set.rod.dt;
+  const Vec3 a = inst.sheath.access_point;
+  Vec3 f = Vec3::Zero(), m = Vec3::Zero();
+  auto add = [&](int i, const Vec3& fi) {
+    f += fi;
+    m += (st.x[i] - a).cross(fi);
+  };
+  for (const NodeContact& c : inst.contacts) {
+    add(c.node, ((c.lambda_n - c.lambda_bias) * c.normal + c.lambda_t) / dt);
   }
-  for (int j = 0; j + 1 < inst.drive.first_free && j < md.m; ++j) tau += ws.torque[j];
+  for (int i = 0; i < md.n; ++i) {
+    if (inst.coupling_impulse[i] != Vec3::Zero()) add(i, inst.coupling_impulse[i] / dt);
+  }
+  for (int i = inst.drive.first_free; i < md.n; ++i) {
+    add(i, md.node_mass[i] * set.rod.gravity + st.f_ext[i]);
+  }
+  for (int j = std::max(0, inst.drive.first_free - 1); j < md.m; ++j) m += st.tau_ext[j];
+  // The hand holds the rod against these loads: > 0 when they push the rod back out.
   const Vec3 axis = inst.sheath.frame * Vec3::UnitZ();
-  inst.drive.axial_force = -f.dot(axis);
-  inst.drive.torque = -tau.dot(axis);
+  DriveState& dr = inst.drive;
+  dr.axial_force_raw = -f.dot(axis);
+  dr.torque_raw = -m.dot(axis);
+  if (set.feedback_cutoff_hz > 0.0 && st.steps > 0) {
+    // y += (1 - exp(-2 pi fc dt)) (x - y): the exact step response of a first-order filter.
+    const double g = 1.0 - std::exp(-2.0 * std::numbers::pi * set.feedback_cutoff_hz * dt);
+    dr.axial_force += g * (dr.axial_force_raw - dr.axial_force);
+    dr.torque += g * (dr.torque_raw - dr.torque);
+  } else {
+    dr.axial_force = dr.axial_force_raw;
+    dr.torque = dr.torque_raw;
+  }
 }
 
 // --- contacts ------------------------------------------------------------------------------------
@@ -179,15 +207,19 @@ void solve_contacts(Instrument& inst, const SolverSettings& set) {
   }
 }
 
-// The penetration fix-up velocity moved the node out; it must not stay as a bounce.
+// The penetration fix-up velocity moved the node out; it must not stay as a bounce. The impulse
+// taken back is kept (lambda_bias): it was a position correction, not a load.
 void remove_contact_bias(Instrument& inst, const SolverSettings& set) {
   const double dt = set.rod.dt;
-  for (const NodeContact& c : inst.contacts) {
+  for (NodeContact& c : inst.contacts) {
     if (c.depth <= 0.0) continue;
     Vec3& v = inst.state.v[c.node];
     const double vn = (v - c.wall_velocity).dot(c.normal);
     const double bias = set.penetration_correction * c.depth / dt;
-    if (vn > 0.0) v -= std::min(vn, bias) * c.normal;
+    if (vn <= 0.0) continue;
+    const double removed = std::min(vn, bias);
+    v -= removed * c.normal;
+    c.lambda_bias = removed / inst.ws.inv_mass[c.node];
   }
 }
 
@@ -202,51 +234,91 @@ double project_on_edge(const RodState& outer, int k, const Vec3& p, double& t) {
   return (a + t * ab - p).squaredNorm();
 }
 
-// Pairs every free inner node inside the outer instrument's inserted length with the outer edge
-// at the same inserted arc length (refined to the geometrically closest neighbour) and records
-// the radial excess beyond the clearance. Marks those inner nodes sheathed (no wall query).
-void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
-                     const SolverSettings& set) {
-  cp.contacts.clear();
-  std::fill(in.sheathed.begin(), in.sheathed.end(), 0);
+// Offset of p from the closest point of the outer centreline near edge k (the edge at the same
+// inserted arc length): walks to the geometrically closest edge, since the two centrelines' arc
+// lengths drift apart by more than an edge where the catheter is compressed or the wire takes
+// the inside of a bend, and an edge whose projection is clamped at its end would pin the node to
+// that vertex along the axis instead of holding it radially. The offset is perpendicular to the
+// edge inside it, toward the vertex where the projection is clamped (at a polyline bend).
+Vec3 offset_from_outer(const RodState& out, int m, int k, const Vec3& p, int& best,
+                       double& best_t) {
+  double t = 0.0;
+  best = k;
+  double best_d2 = project_on_edge(out, k, p, best_t);
+  for (int step : {-1, 1}) {
+    for (int kk = best + step; kk >= 0 && kk < m; kk += step) {
+      const double d2 = project_on_edge(out, kk, p, t);
+      if (d2 >= best_d2) break;
+      best_d2 = d2;
+      best = kk;
+      best_t = t;
+    }
+  }
+  const Vec3& a = out.x[best];
+  return p - (a + best_t * (out.x[best + 1] - a));
+}
+
+// Calls f(i, k) for every free inner node i inside the outer instrument's inserted length, with
+// k the outer edge at the same inserted arc length.
+template <class F>
+void for_each_sheathed(const Instrument& in, const Instrument& out, F&& f) {
   const RodModel& mi = in.model;
   const RodModel& mo = out.model;
-  cp.clearance = std::max(0.0, mo.inner_radius[mo.m - 1] - mi.outer_radius[0]);
   const double in_offset = mi.length - in.drive.depth;    // s at the access point, inner
   const double out_offset = mo.length - out.drive.depth;  // s at the access point, outer
-  const double dt = set.rod.dt;
   int k = 0;
   for (int i = in.drive.first_free; i < mi.n; ++i) {
     const double sigma = mi.node_s[i] - in_offset;  // inserted arc length of this node
     if (sigma <= 0.0 || sigma > out.drive.depth) continue;
-    in.sheathed[i] = 1;
     const double s_out = sigma + out_offset;
     while (k + 1 < mo.m && mo.node_s[k + 1] <= s_out) ++k;
-    const Vec3& p = in.state.x[i];
-    double t = 0.0, best_t = 0.0;
-    int best = k;
-    double best_d2 = project_on_edge(out.state, k, p, best_t);
-    for (int kk : {k - 1, k + 1}) {
-      if (kk < 0 || kk >= mo.m) continue;
-      const double d2 = project_on_edge(out.state, kk, p, t);
-      if (d2 < best_d2) {
-        best_d2 = d2;
-        best = kk;
-        best_t = t;
-      }
-    }
-    // Offset to the closest point of the outer centreline: perpendicular to the edge inside it,
-    // toward the vertex where the projection is clamped (at a bend of the polyline).
-    const Vec3 a = out.state.x[best], b = out.state.x[best + 1];
-    const Vec3 off = p - (a + best_t * (b - a));
-    const double r = off.norm();
-    if (r < 1e-12) continue;
-    const Vec3 rel_v =
-        in.state.v[i] - ((1 - best_t) * out.state.v[best] + best_t * out.state.v[best + 1]);
-    const double excess = r - cp.clearance;
-    if (excess < -(set.contact_margin + rel_v.norm() * dt)) continue;
-    cp.contacts.push_back({i, best, best_t, off / r, excess, 0.0, Vec3::Zero()});
+    f(i, k);
   }
+}
+
+// Pairs every free inner node inside the outer instrument's inserted length with the closest
+// outer edge and records the radial excess beyond the clearance. Marks those inner nodes
+// sheathed (no wall query).
+void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
+                     const SolverSettings& set) {
+  cp.contacts.clear();
+  std::fill(in.sheathed.begin(), in.sheathed.end(), 0);
+  const RodModel& mo = out.model;
+  cp.clearance = std::max(0.0, mo.inner_radius[mo.m - 1] - in.model.outer_radius[0]);
+  const double dt = set.rod.dt;
+  for_each_sheathed(in, out, [&](int i, int k) {
+    in.sheathed[i] = 1;
+    int best = k;
+    double t = 0.0;
+    const Vec3 off = offset_from_outer(out.state, mo.m, k, in.state.x[i], best, t);
+    const double r = off.norm();
+    if (r < 1e-12) return;
+    const Vec3 rel_v = in.state.v[i] - ((1 - t) * out.state.v[best] + t * out.state.v[best + 1]);
+    const double excess = r - cp.clearance;
+    if (excess < -(set.contact_margin + rel_v.norm() * dt)) return;
+    cp.contacts.push_back({i, best, t, off / r, excess, 0.0, Vec3::Zero()});
+  });
+}
+
+// After the positions: moves every sheathed inner node that ended the step beyond the clearance
+// radially back onto it (except past the catheter's tip). The velocity-level constraint bounds only
+// the normal part of the relative motion along the normal of the step's start; a fast tangential
+// relative motion (a catheter tip whipping round a slow wire: up to 2 clearances per step in the
+// pair scene) leaves the node outside by sqrt(c^2 + (v_t dt)^2) - c. The catheter is taken as fixed
+// here, so one pass is exact; the velocities are left alone (the next step's constraint sees a node
+// at the clearance).
+void project_coupling(const Coupling& cp, Instrument& in, const Instrument& out) {
+  for_each_sheathed(in, out, [&](int i, int k) {
+    int best = k;
+    double t = 0.0;
+    const Vec3 off = offset_from_outer(out.state, out.model.m, k, in.state.x[i], best, t);
+    // Closest to the catheter's distal end: the node has left through the tip (on the inside of
+    // a curve the wire's path is shorter than the catheter's centreline), and pulling it back
+    // onto the tip would pin it there along the axis.
+    if (best == out.model.m - 1 && t >= 1.0) return;
+    const double r = off.norm();
+    if (r > cp.clearance) in.state.x[i] -= ((r - cp.clearance) / r) * off;
+  });
 }
 
 // One projected Gauss-Seidel sweep over the concentric constraints: the inner node may not move
@@ -269,6 +341,9 @@ void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverS
       in.ws.node_impulse[c.node] += impulse;
       out.ws.node_impulse[c.segment] -= (1 - c.t) * impulse;
       out.ws.node_impulse[c.segment + 1] -= c.t * impulse;
+      in.coupling_impulse[c.node] += impulse;
+      out.coupling_impulse[c.segment] -= (1 - c.t) * impulse;
+      out.coupling_impulse[c.segment + 1] -= c.t * impulse;
     };
     // Radial: v_rel . n <= -excess / dt: a violation is removed in full (a wire outside its
     // catheter is visible at once), a gap may close exactly.
@@ -301,6 +376,7 @@ void size_scratch(Instrument& inst) {
   inst.leaf_cache.assign(n, LeafCache{});
   inst.query_caches.assign(n, nullptr);
   inst.sheathed.assign(n, 0);
+  inst.coupling_impulse.assign(n, Vec3::Zero());
   inst.ws.resize(inst.model);
 }
 
@@ -336,6 +412,7 @@ void SolverSettings::validate(const std::string& source) const {
   require_in_range(penetration_correction, 0.0, 1.0, source, "penetration_correction");
   require_nonnegative(coherence_margin, source, "coherence_margin");
   require_nonnegative(leaf_cache_slack, source, "leaf_cache_slack");
+  require_nonnegative(feedback_cutoff_hz, source, "feedback_cutoff_hz");
 }
 
 Instrument make_instrument(const RodDef& def_in, const Sheath& sheath,
@@ -395,6 +472,7 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   for (std::size_t k = 0; k < insts.size(); ++k) {
     if (insts[k].parked) continue;
     rod_begin_step(insts[k].model, insts[k].ws);
+    std::fill(insts[k].coupling_impulse.begin(), insts[k].coupling_impulse.end(), Vec3::Zero());
     if (insts[k].driven) drive_begin(insts[k], cmds[k], rs.dt);
   }
   const double t1 = tick();
@@ -443,14 +521,22 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
     }
   }
   const double t5 = tick();
-  // 6. positions
+  // 6. positions, then the coupled wires exactly into their catheters' lumens
   for (Instrument& in : insts) {
     if (in.parked) continue;
     rod_integrate_positions(in.model, rs, in.state, in.ws);
     remove_contact_bias(in, set);
+  }
+  for (Coupling& c : couplings) {
+    if (!insts[c.inner].parked && !insts[c.outer].parked) {
+      project_coupling(c, insts[c.inner], insts[c.outer]);
+    }
+  }
+  for (Instrument& in : insts) {
+    if (in.parked) continue;
     if (in.driven) {
       drive_end(in);
-      drive_feedback(in, rs);
+      drive_feedback(in, set);
     }
     rod_end_step(in.model, rs, in.state, in.ws);
   }

@@ -1,11 +1,14 @@
 // A guidewire in a catheter (catalogue instruments): the wire stays in the catheter's lumen
-// through insertion, rotation and withdrawal. (The Judkins straightening test waits for the
-// implicit integrator: at 1 ms the mass-scaled catheter's shape relaxes over tens of seconds.)
+// through insertion, rotation and withdrawal; a Judkins tip straightens over a stiff wire and
+// recovers its shape when the wire is withdrawn.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <numbers>
 
 #include "vcsim/experiments.h"
+#include "vcsim/instruments.h"
 
 using namespace vcsim;
 
@@ -17,6 +20,12 @@ double segment_distance(const Vec3& a, const Vec3& b, const Vec3& p) {
   return (a + t * ab - p).norm();
 }
 
+// A wire node counts as inside the catheter from this far behind the catheter's tip (by inserted
+// arc length): on the inside of the JL4's curves (250 deg in all) the wire's path is up to
+// c_l x 4.4 rad = 1.9 mm shorter than the catheter's centreline, so a node nearer the tip by arc
+// length may already lie beyond the tip, where the coupling lets it go.
+constexpr double kTipMargin = 2.5e-3;
+
 // Worst radial offset of the wire's nodes inside the catheter from the catheter's centreline
 // (brute force over the catheter's edges: independent of the coupling's own bookkeeping).
 double worst_offset(const PairScene& sc) {
@@ -25,7 +34,7 @@ double worst_offset(const PairScene& sc) {
   double worst = 0.0;
   for (int i = w.drive.first_free; i < w.model.n; ++i) {
     const double sigma = w.model.node_s[i] - (w.model.length - w.drive.depth);
-    if (sigma <= 1e-3 || sigma > c.drive.depth - 1e-3) continue;  // inside the catheter only
+    if (sigma <= 1e-3 || sigma > c.drive.depth - kTipMargin) continue;  // inside the catheter only
     double d = 1e9;
     for (int j = std::max(0, c.drive.first_free - 2); j < c.model.m; ++j) {
       d = std::min(d, segment_distance(c.state.x[j], c.state.x[j + 1], w.state.x[i]));
@@ -71,7 +80,107 @@ TEST(Pair, WireStaysInTheCatheterThroughInsertionRotationAndWithdrawal) {
   EXPECT_GT(coupled, 10) << "the coupling must have been active";
   EXPECT_LE(worst[0], 1.05 * clearance) << "insertion; clearance " << clearance;
   EXPECT_LE(worst[1], 1.05 * clearance) << "rotation; clearance " << clearance;
-  // Withdrawal while the catheter turns: transient excursions of the wire nodes near the
-  // catheter's polyline corners reach about 1.5 x the clearance (issue 4's target is 1.05: open).
-  EXPECT_LE(worst[2], 2.0 * clearance) << "withdrawal; clearance " << clearance;
+  EXPECT_LE(worst[2], 1.05 * clearance) << "withdrawal; clearance " << clearance;
+}
+
+namespace {
+
+// Angle (rad) between the sheath axis (+z) and the catheter's edge at arc length s.
+double edge_angle(const Instrument& c, double s) {
+  int j = 0;
+  while (j + 1 < c.model.m && c.model.node_s[j + 1] < s) ++j;
+  const Vec3 e = (c.state.x[j + 1] - c.state.x[j]).normalized();
+  return std::acos(std::clamp(e.z(), -1.0, 1.0));
+}
+
+double tip_offset(const Instrument& c) {
+  const Vec3& x = c.state.x.back();
+  return std::hypot(x.x(), x.y());
+}
+
+}  // namespace
+
+// Issue 4: the distal 200 mm of a JL4 catheter held at its proximal end in free space (gravity
+// off, no wall) relaxes to its design curve; the stiff exchange wire pushed through it past the
+// curve straightens it; withdrawn, the catheter recovers its shape. Quasi-static (selective mass
+// scaling and internal damping as the Simulator runs them, drag near critical for the tip's
+// first mode), so each relaxation takes tens of thousands of steps (~4 s release, ~10x under
+// the sanitizers).
+TEST(Pair, JudkinsTipStraightensOverAStiffWireAndRecovers) {
+  const InstrumentCatalogue cat = load_catalogue(default_catalogue_dir());
+  InstrumentSpec cs = cat.get("catheter-jl4-6f");
+  InstrumentSpec wsp = cat.get("wire-035-stiff-exchange");
+  cs.length = 0.2;  // the distal part only: the shaft beyond adds nothing but steps
+  wsp.length = 0.35;
+  const double dt = 2.5e-4;
+  Discretisation disc;
+  disc.tip_segment = 2e-3;
+  disc.max_nodes = 81;
+  std::vector<Instrument> insts;
+  for (const InstrumentSpec* sp : {&wsp, &cs}) {
+    RodDef def = to_rod_def(*sp, disc);
+    def.base = BoundaryKind::kFree;
+    def.tip = BoundaryKind::kFree;
+    Instrument in = make_instrument(def, Sheath{}, ContactMaterial{}, 0.0);
+    scale_for_time_step(in.model, dt, 5.0);
+    insts.push_back(std::move(in));
+  }
+  const Instrument& w = insts[0];
+  const Instrument& c = insts[1];
+  std::vector<Coupling> cps(1);
+  cps[0].mu = cs.friction.lumen;
+  cps[0].contacts.reserve(w.model.n);
+  SolverSettings s;
+  s.rod.dt = dt;
+  s.rod.drag = 1.5;
+  s.rod.angular_drag = 1.5;
+  s.rod.internal_damping = 0.4 * dt;
+  s.collisions = false;
+  using M = DriveCommand::Mode;
+  const double cath_depth = c.model.length - c.model.rest_length[0];
+  auto run = [&](double wire_depth, int steps) {
+    const DriveCommand cmds[] = {{M::kPosition, wire_depth, 0.0}, {M::kPosition, cath_depth, 0.0}};
+    for (int k = 0; k < steps; ++k) step_instruments(insts, cps, nullptr, s, cmds);
+  };
+  const double deg = 180.0 / std::numbers::pi;
+  // The design: the primary curve (160 deg, radius 12 mm) ends 57.85 mm from the tip, where the
+  // catheter's direction has turned by 160 deg from the sheath axis.
+  const double arc = 0.012 * 160.0 / deg;
+  const double s_primary = c.model.length - (0.040 + 0.005 * std::numbers::pi / 2 + 0.010);
+  const double design_angle = 160.0 / deg;
+  const double design_offset =
+      std::hypot(c.model.rest_position.back().x(), c.model.rest_position.back().y());
+  const int relax = 40000;  // 10 s; the shape is within 0.1 % of its end value
+  // The catheter goes in over the wire's first 50 mm (in the straight shaft) and relaxes.
+  run(0.05, relax);
+  const double rest_angle = edge_angle(c, s_primary), rest_offset = tip_offset(c);
+  EXPECT_NEAR(rest_angle, design_angle, 0.02 * design_angle) << "relaxed to the design curve";
+  EXPECT_NEAR(rest_offset, design_offset, 0.03 * design_offset);
+  // The wire's stiff part past the curve (its 60 mm floppy tip 25 mm beyond the catheter's tip),
+  // 10 mm per 150 ms, then relax.
+  for (int k = 1; k <= 17; ++k) run(0.05 + 0.01 * k, 600);
+  run(0.22, relax);
+  const double wire_angle = edge_angle(c, s_primary);
+  // Bending together around a straight wire, EI_c (kappa - kappa_0) + EI_w kappa = 0: the curve
+  // keeps ratio = EI_c / (EI_c + EI_w) of its turn. The clearance c_l lets the catheter keep up
+  // to the turn of an arc of length `arc` whose sagitta is the lumen's free play 2 c_l
+  // (kappa = 16 c_l / arc^2) without bending the wire at all: an upper bound on top.
+  const int jc = static_cast<int>(
+      std::lower_bound(c.model.edge_s.begin(), c.model.edge_s.end(), s_primary - 0.5 * arc) -
+      c.model.edge_s.begin());
+  const double ei_c = c.model.youngs[jc] * c.model.bend_inertia[jc];
+  const double ei_w = w.model.youngs[0] * w.model.bend_inertia[0];
+  const double ratio = ei_c / (ei_c + ei_w);
+  const double lumen_play = 16.0 * cps[0].clearance / arc;
+  EXPECT_GT(wire_angle, 0.8 * ratio * design_angle)
+      << "EI ratio " << ratio << ", angle " << wire_angle * deg << " deg";
+  EXPECT_LT(wire_angle, ratio * design_angle + lumen_play)
+      << "the stiff wire straightens the curve: " << wire_angle * deg << " deg (EI ratio " << ratio
+      << ": " << ratio * design_angle * deg << " deg, lumen play " << lumen_play * deg << " deg)";
+  // Withdrawn into the straight shaft: the curve comes back.
+  for (int k = 1; k <= 17; ++k) run(0.22 - 0.01 * k, 600);
+  run(0.05, relax);
+  for (const auto& in : insts) ASSERT_TRUE(in.state.x.back().allFinite());
+  EXPECT_NEAR(edge_angle(c, s_primary), rest_angle, 0.02 * rest_angle) << "recovers its curve";
+  EXPECT_NEAR(tip_offset(c), rest_offset, 0.03 * rest_offset) << "and its tip offset";
 }
