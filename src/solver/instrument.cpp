@@ -99,9 +99,16 @@ void drive_feedback(Instrument& inst, const SolverSettings& set) {
   for (int i = 0; i < md.n; ++i) {
     if (inst.coupling_impulse[i] != Vec3::Zero()) add(i, inst.coupling_impulse[i] / dt);
   }
+  // Gravity through the first mass moment (sum m_i (x_i - a)) x g; applied loads one by one.
+  double mass = 0.0;
+  Vec3 moment = Vec3::Zero();
   for (int i = inst.drive.first_free; i < md.n; ++i) {
-    add(i, md.node_mass[i] * set.rod.gravity + st.f_ext[i]);
+    mass += md.node_mass[i];
+    moment += md.node_mass[i] * (st.x[i] - a);
+    if (st.f_ext[i] != Vec3::Zero()) add(i, st.f_ext[i]);
   }
+  f += mass * set.rod.gravity;
+  m += moment.cross(set.rod.gravity);
   for (int j = std::max(0, inst.drive.first_free - 1); j < md.m; ++j) m += st.tau_ext[j];
   // The hand holds the rod against these loads: > 0 when they push the rod back out.
   const Vec3 axis = inst.sheath.frame * Vec3::UnitZ();
