@@ -78,26 +78,24 @@ struct RodModel {
   BoundaryKind base = BoundaryKind::kFree;
   BoundaryKind tip = BoundaryKind::kFree;
 
-  std::vector<double> rest_length;        // (m) edge rest lengths
-  std::vector<double> inv_rest_length;    // (m) 1 / rest_length (the step multiplies, not divides)
-  std::vector<double> edge_s;             // (m) arc length at edge midpoints
-  std::vector<double> node_s;             // (n) arc length at nodes
-  std::vector<double> node_mass;          // (n)
-  std::vector<double> inv_mass;           // (n) 0 for held nodes
-  std::vector<Vec3> inertia;              // (m) body-frame diagonal rotational inertia
-  std::vector<Vec3> inv_inertia;          // (m)
-  std::vector<double> kp;                 // (m) parallel-constraint stiffness K_p
-  std::vector<double> axial_stiffness;    // (m) E A, used by the penalty stretch method
-  std::vector<double> youngs;             // (m) E per edge (soft tip applied)
-  std::vector<double> shear;              // (m) G per edge
-  std::vector<double> outer_radius;       // (m)
-  std::vector<double> inner_radius;       // (m)
-  std::vector<double> area;               // (m) cross-section A
-  std::vector<double> bend_inertia;       // (m) I
-  std::vector<double> vertex_length;      // (m+1) Voronoi length of each vertex
-  std::vector<double> inv_vertex_length;  // (m+1) 1 / vertex_length (0 where the length is 0)
-  std::vector<Vec3> vertex_stiffness;     // (m+1) (K1, K2, K3) = (E I, E I, G J), series-averaged
-  std::vector<Vec3> rest_darboux;         // (m+1) intrinsic Darboux vector Omega_0 (1/m)
+  std::vector<double> rest_length;      // (m) edge rest lengths
+  std::vector<double> edge_s;           // (m) arc length at edge midpoints
+  std::vector<double> node_s;           // (n) arc length at nodes
+  std::vector<double> node_mass;        // (n)
+  std::vector<double> inv_mass;         // (n) 0 for held nodes
+  std::vector<Vec3> inertia;            // (m) body-frame diagonal rotational inertia
+  std::vector<Vec3> inv_inertia;        // (m)
+  std::vector<double> kp;               // (m) parallel-constraint stiffness K_p
+  std::vector<double> axial_stiffness;  // (m) E A, used by the penalty stretch method
+  std::vector<double> youngs;           // (m) E per edge (soft tip applied)
+  std::vector<double> shear;            // (m) G per edge
+  std::vector<double> outer_radius;     // (m)
+  std::vector<double> inner_radius;     // (m)
+  std::vector<double> area;             // (m) cross-section A
+  std::vector<double> bend_inertia;     // (m) I
+  std::vector<double> vertex_length;    // (m+1) Voronoi length of each vertex
+  std::vector<Vec3> vertex_stiffness;   // (m+1) (K1, K2, K3) = (E I, E I, G J), series-averaged
+  std::vector<Vec3> rest_darboux;       // (m+1) intrinsic Darboux vector Omega_0 (1/m)
   std::vector<unsigned char> vertex_active;  // (m+1) 0 for boundary vertices without a clamp
 
   std::vector<Vec3> rest_position;  // (n) designed rest shape (base pose applied)

@@ -222,11 +222,6 @@ RodModel build_rod(const RodDef& def) {
   md.rest_darboux[0] = darboux(def.base_orientation, md.rest_frame[0], md.vertex_length[0]);
   md.vertex_active[0] = def.base == BoundaryKind::kClamped;
   md.vertex_active[m] = def.tip == BoundaryKind::kClamped;
-  md.inv_rest_length.resize(m);
-  for (int j = 0; j < m; ++j) md.inv_rest_length[j] = 1.0 / md.rest_length[j];
-  md.inv_vertex_length.resize(m + 1);
-  for (int v = 0; v <= m; ++v)
-    md.inv_vertex_length[v] = md.vertex_length[v] > 0.0 ? 1.0 / md.vertex_length[v] : 0.0;
   return md;
 }
 

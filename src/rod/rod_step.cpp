@@ -61,8 +61,8 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
   const Vec3* __restrict v = st.v.data();
   const Quat* __restrict q = st.q.data();
   const double* __restrict mass = md.node_mass.data();
-  const double* __restrict inv_lv = md.inv_vertex_length.data();
-  const double* __restrict inv_rest = md.inv_rest_length.data();
+  const double* __restrict lv = md.vertex_length.data();
+  const double* __restrict rest = md.rest_length.data();
   const double* __restrict kp = md.kp.data();
   const Vec3* __restrict kv = md.vertex_stiffness.data();
   const Vec3* __restrict w0 = md.rest_darboux.data();
@@ -120,7 +120,7 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
     const double rx = sg * (aw * bx + ax * bw + ay * bz - az * by);
     const double ry = sg * (aw * by - ax * bz + ay * bw + az * bx);
     const double rz = sg * (aw * bz + ax * by - ay * bx + az * bw);
-    const double two_l = 2.0 * inv_lv[k];
+    const double two_l = 2.0 / lv[k];
     const double kx = K[3 * k] * (two_l * rx - W0[3 * k]);
     const double ky = K[3 * k + 1] * (two_l * ry - W0[3 * k + 1]);
     const double kz = K[3 * k + 2] * (two_l * rz - W0[3 * k + 2]);
@@ -142,8 +142,8 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
                  ez = X[3 * j + 5] - X[3 * j + 2];
     const double* r = R + 9 * j;
     const double dx = r[6], dy = r[7], dz = r[8];  // d3
-    const double il = inv_rest[j];
-    const double ux = ex * il, uy = ey * il, uz = ez * il;
+    const double l = rest[j];
+    const double ux = ex / l, uy = ey / l, uz = ez / l;
     const double axial = ux * dx + uy * dy + uz * dz;
     const double k = kp[j];
     px[j + 1] = k * (ux - axial * dx);
