@@ -4,10 +4,6 @@
 // generous (a loaded machine); nothing asserts on timing.
 #include <arpa/inet.h>
 #include <gtest/gtest.h>
-#include <igtlClientSocket.h>
-#include <igtlMessageHeader.h>
-#include <igtlSensorMessage.h>
-#include <igtlTransformMessage.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
 
@@ -23,6 +19,7 @@
 #include <thread>
 
 #include "../common/cli_runner.h"
+#include "../common/igtl_client.h"
 
 namespace vcsim::test {
 namespace {
@@ -71,56 +68,7 @@ int wait_for_port(CliProcess& p, const fs::path& err, std::chrono::seconds limit
   return 0;
 }
 
-class Client {
- public:
-  bool connect(int port) {
-    for (int attempt = 0; attempt < 100; ++attempt) {
-      sock_ = igtl::ClientSocket::New();
-      if (sock_->ConnectToServer("127.0.0.1", port) == 0) {
-        sock_->SetReceiveTimeout(50);
-        return true;
-      }
-      std::this_thread::sleep_for(20ms);
-    }
-    return false;
-  }
-  // The hub pushed `depth_mm` along the insertion (z) axis (docs/devices.md).
-  bool send_depth(const char* name, double depth_mm) {
-    igtl::Matrix4x4 m;
-    igtl::IdentityMatrix(m);
-    m[2][3] = static_cast<float>(depth_mm);
-    auto msg = igtl::TransformMessage::New();
-    msg->SetDeviceName(name);
-    msg->SetMatrix(m);
-    msg->Pack();
-    return sock_->Send(msg->GetPackPointer(), msg->GetPackSize()) == 1;
-  }
-  // One message if one comes within the receive timeout: true when it is SENSOR `name`.
-  bool read_sensor(const std::string& name, std::vector<double>& values) {
-    auto head = igtl::MessageHeader::New();
-    head->InitPack();
-    if (sock_->Receive(head->GetPackPointer(), head->GetPackSize()) != head->GetPackSize())
-      return false;
-    head->Unpack();
-    if (std::strcmp(head->GetDeviceType(), "SENSOR") != 0 || name != head->GetDeviceName()) {
-      sock_->Skip(head->GetBodySizeToRead(), 1);
-      return false;
-    }
-    auto msg = igtl::SensorMessage::New();
-    msg->SetMessageHeader(head);
-    msg->AllocatePack();
-    if (sock_->Receive(msg->GetPackBodyPointer(), msg->GetPackBodySize()) != msg->GetPackBodySize())
-      return false;
-    if (!(msg->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) return false;
-    values.resize(msg->GetLength());
-    for (unsigned int i = 0; i < msg->GetLength(); ++i) values[i] = msg->GetValue(i);
-    return true;
-  }
-  void close() { sock_->CloseSocket(); }
-
- private:
-  igtl::ClientSocket::Pointer sock_;
-};
+using Client = test::IgtlClient;
 
 TEST(RunCli, LiveDeviceDrivesTheRun) {
   const fs::path d = scratch("drive");
@@ -141,8 +89,8 @@ TEST(RunCli, LiveDeviceDrivesTheRun) {
   std::vector<double> v;
   const auto end = Clock::now() + 300s;
   while (!p.exited() && Clock::now() < end) {
-    c.send_depth("wire", 30.0);  // fails harmlessly once the run has closed the connection
-    if (c.read_sensor("force_wire", v) && v.size() == 2 && std::isfinite(v[0])) ++forces;
+    c.send_transform("wire", 30.0);  // fails harmlessly once the run has closed the connection
+    if (c.read_sensor("force_wire", v, 100ms) && v.size() == 2 && std::isfinite(v[0])) ++forces;
   }
   c.close();
   ASSERT_TRUE(p.wait(60s));
@@ -179,7 +127,7 @@ TEST(RunCli, LiveRunEndsCleanlyOnSigint) {
   ASSERT_GT(port, 0) << slurp(d / "stderr.txt");
   Client c;
   ASSERT_TRUE(c.connect(port));
-  c.send_depth("wire", 10.0);
+  c.send_transform("wire", 10.0);
   std::this_thread::sleep_for(500ms);  // some steps (the time limit is 600 s)
   c.close();
   p.signal(SIGINT);

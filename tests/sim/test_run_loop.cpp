@@ -3,14 +3,13 @@
 // observer; and an OpenIGTLink client drives a wire in the default patient in process. Waits
 // are bounded; the only timing assertions are lower bounds a sleep guarantees.
 #include <gtest/gtest.h>
-#include <igtlClientSocket.h>
-#include <igtlTransformMessage.h>
 
 #include <atomic>
 #include <chrono>
 #include <csignal>
 #include <thread>
 
+#include "../common/igtl_client.h"
 #include "vcsim/core.h"
 #include "vcsim/sim.h"
 
@@ -138,25 +137,13 @@ TEST(SimulatorRunLoop, IgtlClientDrivesTheWire) {
   // The client pushes the wire to 25 mm once it is connected, then keeps repeating it.
   std::atomic<bool> done{false};
   std::thread client([&] {
-    auto sock = igtl::ClientSocket::New();
-    bool connected = false;
-    for (int i = 0; i < 200 && !connected && !done; ++i) {
-      connected = sock->ConnectToServer("127.0.0.1", server.port()) == 0;
-      if (!connected) std::this_thread::sleep_for(10ms);
-    }
-    if (!connected) return;
-    igtl::Matrix4x4 m;
-    igtl::IdentityMatrix(m);
-    m[2][3] = 25.0f;
-    auto msg = igtl::TransformMessage::New();
-    msg->SetDeviceName("wire");
-    msg->SetMatrix(m);
-    msg->Pack();
+    test::IgtlClient c;
+    if (!c.connect(server.port())) return;
     while (!done) {
-      sock->Send(msg->GetPackPointer(), msg->GetPackSize());
+      c.send_transform("wire", 25.0);
       std::this_thread::sleep_for(20ms);
     }
-    sock->CloseSocket();
+    c.close();
   });
 
   // Wait (bounded) for the first command before the clock starts, so the outcome does not
