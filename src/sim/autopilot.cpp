@@ -30,6 +30,24 @@ constexpr double kDeadband = 10.0 * kPi / 180.0;
 constexpr double kMaxRoll = kPi / 2;  // steering stays within a quarter turn of the phase start
 
 // Distal direction of the instrument's shaft just proximal to its shaped tip, and of the tip.
+// Index of the point nearest X (the first of equals). With `s`, only the points whose s lies
+// within `window` of `centre` count; if none does, 0.
+std::size_t nearest_point(const std::vector<Vec3>& pts, const Vec3& X,
+                          const std::vector<double>* s = nullptr, double centre = 0.0,
+                          double window = 0.0) {
+  std::size_t best = 0;
+  double best_d = 1e300;
+  for (std::size_t k = 0; k < pts.size(); ++k) {
+    if (s && std::abs((*s)[k] - centre) > window) continue;
+    const double d = (pts[k] - X).squaredNorm();
+    if (d < best_d) {
+      best_d = d;
+      best = k;
+    }
+  }
+  return best;
+}
+
 void tip_directions(const Instrument& in, double shaped, Vec3& shaft, Vec3& tipdir) {
   const RodModel& md = in.model;
   const auto& x = in.state.x;
@@ -111,16 +129,8 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
   const TreeHit hit = locate(sim.tree(), X);
 
   // Progress: the nearest route point within a window around the last progress.
-  std::size_t best = 0;
-  double best_d = 1e300;
-  for (std::size_t k = 0; k < route_.size(); ++k) {
-    if (std::abs(route_s_[k] - progress_) > 0.06 && !(progress_ == 0.0)) continue;
-    const double d = (route_[k] - X).squaredNorm();
-    if (d < best_d) {
-      best_d = d;
-      best = k;
-    }
-  }
+  const std::size_t best =
+      nearest_point(route_, X, progress_ == 0.0 ? nullptr : &route_s_, progress_, 0.06);
   progress_ = route_s_[best];
   const bool off_route = !on_route_[hit.loc.segment] || hit.outside > 2e-3;
   const bool reached = hit.loc.segment == goal_segment_ &&
@@ -147,12 +157,7 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
       h.route_s.push_back(s_k);
     }
     h.target = ph.seat;
-    if (!h.route.empty()) {
-      std::size_t nearest = 0;
-      for (std::size_t k = 1; k < h.route.size(); ++k)
-        if ((h.route[k] - X).squaredNorm() < (h.route[nearest] - X).squaredNorm()) nearest = k;
-      h.target += h.route_s[nearest];
-    }
+    if (!h.route.empty()) h.target += h.route_s[nearest_point(h.route, X)];
     holds_.push_back(std::move(h));
     ++phase_;
     start_phase(sim);
@@ -302,9 +307,7 @@ void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
   for (std::size_t hi = 0; hi < holds_.size(); ++hi) {
     const Hold& h = holds_[hi];
     const Vec3 X = sim.tip_rest(h.instrument);
-    std::size_t best = 0;
-    for (std::size_t k = 1; k < h.route.size(); ++k)
-      if ((h.route[k] - X).squaredNorm() < (h.route[best] - X).squaredNorm()) best = k;
+    const std::size_t best = nearest_point(h.route, X);
     if ((h.route[best] - X).norm() <= kHoldReach) holds_[hi].seen = t;
     if (t - h.seen > kHoldLost) {
       // The tip fell out (a guiding catheter backing out of the ostium as the wire pushes).
