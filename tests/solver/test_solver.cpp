@@ -52,6 +52,23 @@ struct StraightTube {
   StaticWall wall() const { return StaticWall(mesh, tree); }
 };
 
+// The drive tests' scene: a 100 mm rod of 60 segments inserted `depth` into a frictionless
+// dead-end tube (radius 2 mm, 60 mm long), mass-scaled for a 1 ms step (times `mass_factor`),
+// drag 20 /s.
+struct DeadEndScene {
+  static constexpr double kDt = 1e-3;
+  StraightTube tube{2.0e-3, 0.06, /*cap=*/true};
+  Instrument inst;
+  SolverSettings s;
+  explicit DeadEndScene(double depth, double mass_factor = 1.0) {
+    RodDef d = test_rod(0.1, 60);
+    d.density = mass_factor * scaled_density(d, kDt);
+    inst = make_instrument(d, Sheath{}, ContactMaterial{0.0, 0.0}, depth);
+    s.rod.dt = kDt;
+    s.rod.drag = 20.0;
+  }
+};
+
 }  // namespace
 
 TEST(Solver, HardPushIntoADeadEndStaysInsideForTenSeconds) {
@@ -139,15 +156,10 @@ TEST_P(Incline, SlidesOnlyBeyondTheFrictionAngle) {
 INSTANTIATE_TEST_SUITE_P(TanOverMu, Incline, ::testing::Values(0.8, 1.25, 2.0));
 
 TEST(Solver, DriveFeelsTheDeadEnd) {
-  StraightTube tube(2.0e-3, 0.06, /*cap=*/true);
-  RodDef d = test_rod(0.1, 60);
-  const double dt = 1e-3;
-  d.density = scaled_density(d, dt);
-  Instrument inst = make_instrument(d, Sheath{}, ContactMaterial{0.0, 0.0}, 0.03);
-  SolverSettings s;
-  s.rod.dt = dt;
-  s.rod.drag = 20.0;
-  StaticWall wall = tube.wall();
+  DeadEndScene sc(0.03);
+  Instrument& inst = sc.inst;
+  const SolverSettings& s = sc.s;
+  StaticWall wall = sc.tube.wall();
   auto push_to = [&](double depth, int settle) {
     DriveCommand c{DriveCommand::Mode::kPosition, depth, 0.0};
     for (int k = 0; k < settle; ++k) instrument_step(inst, &wall, s, c);
@@ -214,16 +226,11 @@ TEST(Compression, PaperTargets) {
 // factors). The old definition (the held nodes' force balance) read the drag c m v of the held
 // part and, through the constraints, of the inserted part: 2.2 kN here, 8.9 kN at mass 4.
 TEST(Solver, HandForceDoesNotScaleWithTheRodsMass) {
-  StraightTube tube(2.0e-3, 0.06, /*cap=*/true);
-  const double dt = 1e-3;
   for (double mass_factor : {1.0, 4.0}) {
-    RodDef d = test_rod(0.1, 60);
-    d.density = mass_factor * scaled_density(d, dt);
-    Instrument inst = make_instrument(d, Sheath{}, ContactMaterial{0.0, 0.0}, 0.03);
-    SolverSettings s;
-    s.rod.dt = dt;
-    s.rod.drag = 20.0;
-    StaticWall wall = tube.wall();
+    DeadEndScene sc(0.03, mass_factor);
+    Instrument& inst = sc.inst;
+    const SolverSettings& s = sc.s;
+    StaticWall wall = sc.tube.wall();
     const DriveCommand push{DriveCommand::Mode::kVelocity, 0.02, 0.0};  // 20 mm/s for 1 s
     double worst = 0.0;
     for (int k = 0; k < 1000; ++k) {
@@ -237,16 +244,12 @@ TEST(Solver, HandForceDoesNotScaleWithTheRodsMass) {
 
 // The optional haptic low-pass: a first-order filter of the raw force with the set cutoff.
 TEST(Solver, HandForceLowPassIsFirstOrder) {
-  StraightTube tube(2.0e-3, 0.06, /*cap=*/true);
-  RodDef d = test_rod(0.1, 60);
-  const double dt = 1e-3;
-  d.density = scaled_density(d, dt);
-  Instrument inst = make_instrument(d, Sheath{}, ContactMaterial{0.0, 0.0}, 0.05);
-  SolverSettings s;
-  s.rod.dt = dt;
-  s.rod.drag = 20.0;
+  DeadEndScene sc(0.05);
+  Instrument& inst = sc.inst;
+  SolverSettings& s = sc.s;
   s.feedback_cutoff_hz = 30.0;
-  StaticWall wall = tube.wall();
+  StaticWall wall = sc.tube.wall();
+  const double dt = DeadEndScene::kDt;
   const double g = 1.0 - std::exp(-2.0 * std::numbers::pi * 30.0 * dt);
   const DriveCommand c{DriveCommand::Mode::kPosition, 0.0605, 0.0};
   double prev = 0.0, worst = 0.0, range = 0.0;
