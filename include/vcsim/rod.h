@@ -12,6 +12,7 @@
 #include "vcsim/core.h"
 
 #include <array>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -155,18 +156,23 @@ struct RodProfile {
 struct RodWorkspace {
   std::vector<Vec3> force;   // (n)
   std::vector<Vec3> torque;  // (m) world
-  std::vector<Mat3> rot;     // (m) frame rotation matrices of this step (material -> world)
-  std::vector<Vec3> dir;     // (m) constraint directions
+  // (9 m) the frames' rotation matrices of this step (material -> world) as a structure of
+  // arrays, so that the force loops vectorise: entry (r, c) of frame j is rot[(3 c + r) m + j].
+  std::vector<double> rot;
+  std::vector<Vec3> dir;                           // (m) constraint directions
   std::vector<double> diag, offdiag, rhs, lambda;  // (m) tridiagonal system
   std::vector<Vec3> dv;                            // (n) Jacobi accumulator
   std::vector<Vec3> pred;                          // (n) predicted positions x + dt v
   // Per-step effective inverse masses: the model's, with nodes and frames held by a drive or a
   // clamp set to zero (rod_begin_step copies the model's; a drive may then hold more).
-  std::vector<double> inv_mass;    // (n)
-  std::vector<double> frame_free;  // (m) 1 for a dynamic frame, 0 for a prescribed one
+  std::vector<double> inv_mass;           // (n)
+  std::vector<double> frame_free;         // (m) 1 for a dynamic frame, 0 for a prescribed one
+  std::vector<std::uint64_t> frame_mask;  // (m) frame_free as a bit mask (rod step scratch)
   std::vector<Vec3> node_impulse;  // (n) constraint impulses of this step (N s), held nodes too
   std::vector<double> scratch;     // 6 (m + 2): per-vertex and per-edge terms of rod_forces
   void resize(const RodModel& model);
+  // Frame j's rotation matrix gathered from `rot`.
+  Mat3 frame_rotation(int j) const;
 };
 
 RodModel build_rod(const RodDef& def);

@@ -6,6 +6,8 @@
 
 #include <cmath>
 
+#include "kernels.h"
+
 extern "C" {
 // LAPACK: factor and solve a symmetric positive definite tridiagonal system.
 void dpttrf_(const int* n, double* d, double* e, int* info);
@@ -29,50 +31,81 @@ inline double constraint_at(const Vec3& xa, const Vec3& va, const Vec3& xb, cons
 }
 }  // namespace
 
-bool distance_global(const RodModel& md, double dt, std::span<const Vec3> xs, std::span<Vec3> vs,
-                     RodWorkspace& ws) {
-  const int m = md.m;
-  // Raw pointers (see rod_step.cpp: SIMD stores would force address reloads).
+VCSIM_SIMD_CLONES bool distance_global(const RodModel& md, double dt, std::span<const Vec3> xs,
+                                       std::span<Vec3> vs, RodWorkspace& ws) {
+  const int n = md.n, m = md.m;  // locals: loop bounds must not be re-read after stores
+  // Plain arrays and `ivdep` so that the loops vectorise (see rod_step.cpp); each element sees
+  // the same operations in the same order as the Vec3 expressions they replace.
   const double* __restrict w = ws.inv_mass.data();
   const double* __restrict rest = md.rest_length.data();
-  const Vec3* __restrict x = xs.data();
-  Vec3* __restrict v = vs.data();
-  Vec3* __restrict p = ws.pred.data();
-  Vec3* __restrict dir = ws.dir.data();
+  const double* __restrict X = xs[0].data();
+  double* __restrict V = vs[0].data();
+  double* __restrict P = ws.pred[0].data();  // predicted positions, then the impulses
+  double* __restrict D = ws.dir[0].data();
   double* __restrict diag = ws.diag.data();
   double* __restrict off = ws.offdiag.data();
   double* __restrict rhs = ws.rhs.data();
-  for (int i = 0; i < md.n; ++i) p[i] = x[i] + dt * v[i];
+  double* __restrict NI = ws.node_impulse[0].data();
+#pragma GCC ivdep
+  for (int i = 0; i < 3 * n; ++i) P[i] = X[i] + dt * V[i];
   const double inv_dt = 1.0 / dt;
   // C_j at the predicted positions, n_j, and the diagonal A_jj = w_j + w_{j+1}.
+#pragma GCC ivdep
   for (int j = 0; j < m; ++j) {
-    const Vec3 e = p[j + 1] - p[j];
-    const double len = std::sqrt(e.squaredNorm());
-    dir[j] = e * (1.0 / len);
+    const double ex = P[3 * j + 3] - P[3 * j], ey = P[3 * j + 4] - P[3 * j + 1],
+                 ez = P[3 * j + 5] - P[3 * j + 2];
+    const double len = std::sqrt(ex * ex + ey * ey + ez * ez);
+    const double inv_len = 1.0 / len;
+    D[3 * j] = ex * inv_len;
+    D[3 * j + 1] = ey * inv_len;
+    D[3 * j + 2] = ez * inv_len;
     rhs[j] = (rest[j] - len) * inv_dt;
-    double d = w[j] + w[j + 1];
-    if (d == 0.0) {  // both ends held: the constraint cannot act
-      d = 1.0;
+    diag[j] = (w[j] + w[j + 1]) * (1.0 + kRegularisation);
+  }
+  // A constraint between two held nodes cannot act (a rare case: a scalar pass keeps the loop
+  // above free of branches).
+  for (int j = 0; j < m; ++j) {
+    if (w[j] + w[j + 1] == 0.0) {
+      diag[j] = 1.0 * (1.0 + kRegularisation);
       rhs[j] = 0.0;
     }
-    diag[j] = d * (1.0 + kRegularisation);
   }
   // A_{j,j+1} = -w_{j+1} n_j . n_{j+1}.
-  for (int j = 0; j + 1 < m; ++j) off[j] = -w[j + 1] * dir[j].dot(dir[j + 1]);
+#pragma GCC ivdep
+  for (int j = 0; j + 1 < m; ++j) {
+    off[j] = -w[j + 1] *
+             (D[3 * j] * D[3 * j + 3] + D[3 * j + 1] * D[3 * j + 4] + D[3 * j + 2] * D[3 * j + 5]);
+  }
   int info = 0;
   const int nrhs = 1;
   dpttrf_(&m, diag, off, &info);
   if (info != 0) return false;
   dpttrs_(&m, &nrhs, diag, off, rhs, &m, &info);
   if (info != 0) return false;
-  // dv = W J^T lambda: node k gets w_k (n_{k-1} lambda_{k-1} - n_k lambda_k).
-  Vec3* __restrict node_imp = ws.node_impulse.data();
+  // dv = W J^T lambda: node k gets w_k (n_{k-1} lambda_{k-1} - n_k lambda_k), added in that
+  // order. The impulses lambda_j n_j first, then one pass over the nodes.
+  double* __restrict imp = P;
+#pragma GCC ivdep
   for (int j = 0; j < m; ++j) {
-    const Vec3 imp = rhs[j] * dir[j];
-    v[j] -= w[j] * imp;
-    v[j + 1] += w[j + 1] * imp;
-    node_imp[j] -= imp;
-    node_imp[j + 1] += imp;
+    imp[3 * j] = rhs[j] * D[3 * j];
+    imp[3 * j + 1] = rhs[j] * D[3 * j + 1];
+    imp[3 * j + 2] = rhs[j] * D[3 * j + 2];
+  }
+  for (int c = 0; c < 3; ++c) {
+    V[c] -= w[0] * imp[c];
+    NI[c] -= imp[c];
+  }
+#pragma GCC ivdep
+  for (int k = 1; k < m; ++k) {
+    for (int c = 0; c < 3; ++c) {
+      const double a = imp[3 * k - 3 + c], b = imp[3 * k + c];
+      V[3 * k + c] = (V[3 * k + c] + w[k] * a) - w[k] * b;
+      NI[3 * k + c] = (NI[3 * k + c] + a) - b;
+    }
+  }
+  for (int c = 0; c < 3; ++c) {
+    V[3 * m + c] += w[m] * imp[3 * m - 3 + c];
+    NI[3 * m + c] += imp[3 * m - 3 + c];
   }
   return true;
 }

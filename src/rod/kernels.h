@@ -5,6 +5,15 @@
 
 #include "vcsim/core.h"
 
+// The rod's hot loops are compiled twice, for AVX2 and for the x86-64 baseline (SSE2), and the
+// loader picks one for the machine. Both give the same bits: the loops are element-wise,
+// -ffp-contract=off rules out fused multiply-adds, and division and sqrt are correctly rounded.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define VCSIM_SIMD_CLONES [[gnu::target_clones("avx2", "default")]]
+#else
+#define VCSIM_SIMD_CLONES
+#endif
+
 namespace vcsim::internal {
 
 // Relative rotation r = conj(qa) qb with the double cover resolved (r.w >= 0), so that the
@@ -74,13 +83,29 @@ inline double stretch_penalty(const Vec3& xa, const Vec3& xb, double l, double e
 // a = Omega dt (cos -> (1 - a^2/4) / (1 + a^2/4), sin -> a / (1 + a^2/4)). Unlike the explicit
 // term, which grows |w| by sqrt(1 + a^2) per step and turns a twisting, bending frame into a
 // runaway spin, this keeps |I w| exactly for any step (physics.md eq. 9).
-inline Vec3 integrate_spin(const Vec3& w, const Vec3& inertia, const Vec3& inv_inertia,
-                           const Vec3& tau_body, double dt) {
-  const Vec3 k = w + dt * inv_inertia.cwiseProduct(tau_body);
-  const double a = dt * (inertia.z() - inertia.x()) * inv_inertia.x() * k.z();
+// Written on scalars so that the rod step's frame loop, which calls it on plain arrays, vectorises
+// (physics.md eq. 9); `integrate_spin` below is the same on vectors.
+[[gnu::always_inline]] inline void integrate_spin_scalar(const double w[3], const double inertia[3],
+                                                         const double inv_inertia[3],
+                                                         const double tau_body[3], double dt,
+                                                         double out[3]) {
+  const double k0 = w[0] + dt * (inv_inertia[0] * tau_body[0]);
+  const double k1 = w[1] + dt * (inv_inertia[1] * tau_body[1]);
+  const double k2 = w[2] + dt * (inv_inertia[2] * tau_body[2]);
+  const double a = dt * (inertia[2] - inertia[0]) * inv_inertia[0] * k2;
   const double d = 1.0 / (1.0 + 0.25 * a * a);
   const double c = (1.0 - 0.25 * a * a) * d, s = a * d;
-  return Vec3(c * k.x() - s * k.y(), s * k.x() + c * k.y(), k.z());
+  out[0] = c * k0 - s * k1;
+  out[1] = s * k0 + c * k1;
+  out[2] = k2;
+}
+
+inline Vec3 integrate_spin(const Vec3& w, const Vec3& inertia, const Vec3& inv_inertia,
+                           const Vec3& tau_body, double dt) {
+  Vec3 out;
+  integrate_spin_scalar(w.data(), inertia.data(), inv_inertia.data(), tau_body.data(), dt,
+                        out.data());
+  return out;
 }
 
 // q <- normalise(q + dt/2 q (0, w)), the semi-implicit frame update (physics.md eq. 10),

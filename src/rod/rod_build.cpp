@@ -249,7 +249,7 @@ RodState make_state(const RodModel& md, const RodDef& def) {
 void RodWorkspace::resize(const RodModel& md) {
   force.assign(md.n, Vec3::Zero());
   torque.assign(md.m, Vec3::Zero());
-  rot.assign(md.m, Mat3::Identity());
+  rot.assign(9 * static_cast<std::size_t>(md.m), 0.0);
   dir.assign(md.m, Vec3::Zero());
   diag.assign(md.m, 0.0);
   offdiag.assign(md.m, 0.0);
@@ -259,8 +259,18 @@ void RodWorkspace::resize(const RodModel& md) {
   pred.assign(md.n, Vec3::Zero());
   inv_mass = md.inv_mass;
   frame_free.assign(md.m, 1.0);
+  frame_mask.assign(md.m, 0);
   node_impulse.assign(md.n, Vec3::Zero());
   scratch.assign(6 * static_cast<std::size_t>(md.m + 2), 0.0);
+}
+
+Mat3 RodWorkspace::frame_rotation(int j) const {
+  const std::size_t m = rot.size() / 9;
+  Mat3 r;
+  for (int c = 0; c < 3; ++c) {
+    for (int i = 0; i < 3; ++i) r(i, c) = rot[(3 * c + i) * m + j];
+  }
+  return r;
 }
 
 Vec3 darboux(const Quat& qa, const Quat& qb, double l) {

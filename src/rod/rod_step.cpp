@@ -1,7 +1,9 @@
 // The rod step: forces, semi-implicit velocity integration, constraint iterations, position
 // integration (physics.md section 5). Reads the model, writes the state; allocates nothing.
 #include <algorithm>
+#include <bit>
 #include <cmath>
+#include <cstdint>
 #include <stdexcept>
 
 #include "distance.h"
@@ -50,13 +52,21 @@ void RodSettings::validate(const std::string& source) const {
 
 namespace {
 
-void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, RodWorkspace& ws) {
+// a where the mask is all ones, b where it is zero, bit for bit.
+inline double select_bits(std::uint64_t mask, double a, double b) {
+  return std::bit_cast<double>((std::bit_cast<std::uint64_t>(a) & mask) |
+                               (std::bit_cast<std::uint64_t>(b) & ~mask));
+}
+
+VCSIM_SIMD_CLONES void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st,
+                                         RodWorkspace& ws) {
   const int n = md.n, m = md.m;
   // Raw pointers: Eigen's SIMD stores may alias anything, so through std::vector the compiler
-  // would reload every array's address after each store.
+  // would reload every array's address after each store. GCC's dependence analysis does not use
+  // __restrict on local pointers, so the loops that must vectorise say `ivdep` (no iteration
+  // reads what another one writes).
   Vec3* __restrict force = ws.force.data();
   Vec3* __restrict torque = ws.torque.data();
-  Mat3* __restrict rot = ws.rot.data();
   const Vec3* __restrict x = st.x.data();
   const Vec3* __restrict v = st.v.data();
   const Quat* __restrict q = st.q.data();
@@ -67,15 +77,22 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
   const Vec3* __restrict kv = md.vertex_stiffness.data();
   const Vec3* __restrict w0 = md.rest_darboux.data();
   // The frames, bending and twisting, and the parallel penalty as flat loops over plain arrays
-  // (quaternion, matrix and vector coefficients addressed directly); each vertex's and edge's
-  // contribution is written once and the sums per node and frame are formed afterwards, so no
-  // loop carries a dependency. GCC 12 vectorises only the node loop (4): the frame loops read
-  // interleaved groups of 4 and 9 doubles it does not vectorise (-fopt-info-vec-missed), so
-  // they run as scalar code; a structure-of-arrays copy of the frames would be the next step.
-  static_assert(sizeof(Quat) == 4 * sizeof(double) && sizeof(Vec3) == 3 * sizeof(double) &&
-                sizeof(Mat3) == 9 * sizeof(double));
+  // (quaternion and vector coefficients addressed directly, the rotation matrices as nine
+  // arrays); each vertex's and edge's contribution is written once and the sums per node and
+  // frame are formed afterwards, so no loop carries a dependency and every loop vectorises
+  // (GCC does not vectorise stores in interleaved groups of nine, so the matrices are not kept
+  // as Mat3s). Vectorised or not, each element sees the same operations in the same order.
+  static_assert(sizeof(Quat) == 4 * sizeof(double) && sizeof(Vec3) == 3 * sizeof(double));
   const double* __restrict Q = q[0].coeffs().data();  // (x, y, z, w) per frame
-  double* __restrict R = rot[0].data();               // column-major 3 x 3 per frame
+  double* __restrict r0 = ws.rot.data();              // entry (r, c) of frame j: r{3c + r}[j]
+  double* __restrict r1 = r0 + m;
+  double* __restrict r2 = r1 + m;
+  double* __restrict r3 = r2 + m;
+  double* __restrict r4 = r3 + m;
+  double* __restrict r5 = r4 + m;
+  double* __restrict r6 = r5 + m;
+  double* __restrict r7 = r6 + m;
+  double* __restrict r8 = r7 + m;
   const double* __restrict X = x[0].data();
   const double* __restrict K = kv[0].data();
   const double* __restrict W0 = w0[0].data();
@@ -88,27 +105,28 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
   double* __restrict py = px + (m + 2);
   double* __restrict pz = py + (m + 2);
   // 1. Frame j as a rotation matrix (material -> world), kept for the rest of the step.
+#pragma GCC ivdep
   for (int j = 0; j < m; ++j) {
     const double qx = Q[4 * j], qy = Q[4 * j + 1], qz = Q[4 * j + 2], qw = Q[4 * j + 3];
     const double tx = 2 * qx, ty = 2 * qy, tz = 2 * qz;
     const double twx = tx * qw, twy = ty * qw, twz = tz * qw;
     const double txx = tx * qx, txy = ty * qx, txz = tz * qx;
     const double tyy = ty * qy, tyz = tz * qy, tzz = tz * qz;
-    double* r = R + 9 * j;
-    r[0] = 1 - (tyy + tzz);
-    r[1] = txy + twz;
-    r[2] = txz - twy;
-    r[3] = txy - twz;
-    r[4] = 1 - (txx + tzz);
-    r[5] = tyz + twx;
-    r[6] = txz + twy;
-    r[7] = tyz - twx;
-    r[8] = 1 - (txx + tyy);
+    r0[j] = 1 - (tyy + tzz);
+    r1[j] = txy + twz;
+    r2[j] = txz - twy;
+    r3[j] = txy - twz;
+    r4[j] = 1 - (txx + tzz);
+    r5[j] = tyz + twx;
+    r6[j] = txz + twy;
+    r7[j] = tyz - twx;
+    r8[j] = 1 - (txx + tyy);
   }
   // 2. Bending and twisting at interior vertex k between frames a = k - 1 and b = k
   // (kernels.h bend_twist, physics.md eqs. 2-5): G_k = R_a g, added to frame a, taken from b.
   gx[0] = gy[0] = gz[0] = 0.0;
   gx[m] = gy[m] = gz[m] = 0.0;
+#pragma GCC ivdep
   for (int k = 1; k < m; ++k) {
     const double* a = Q + 4 * (k - 1);
     const double* b = Q + 4 * k;
@@ -127,21 +145,21 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
     const double g0 = rw * kx + (ry * kz - rz * ky);
     const double g1 = rw * ky + (rz * kx - rx * kz);
     const double g2 = rw * kz + (rx * ky - ry * kx);
-    const double* ra = R + 9 * (k - 1);
-    gx[k] = ra[0] * g0 + ra[3] * g1 + ra[6] * g2;
-    gy[k] = ra[1] * g0 + ra[4] * g1 + ra[7] * g2;
-    gz[k] = ra[2] * g0 + ra[5] * g1 + ra[8] * g2;
+    const int ja = k - 1;
+    gx[k] = r0[ja] * g0 + r3[ja] * g1 + r6[ja] * g2;
+    gy[k] = r1[ja] * g0 + r4[ja] * g1 + r7[ja] * g2;
+    gz[k] = r2[ja] * g0 + r5[ja] * g1 + r8[ja] * g2;
   }
   // 3. The parallel penalty of edge j (kernels.h parallel_penalty, eq. 6) and the frame torques.
   px[0] = py[0] = pz[0] = 0.0;
   px[m + 1] = py[m + 1] = pz[m + 1] = 0.0;
   const double* __restrict te = st.tau_ext[0].data();
   double* __restrict T = torque[0].data();
+#pragma GCC ivdep
   for (int j = 0; j < m; ++j) {
     const double ex = X[3 * j + 3] - X[3 * j], ey = X[3 * j + 4] - X[3 * j + 1],
                  ez = X[3 * j + 5] - X[3 * j + 2];
-    const double* r = R + 9 * j;
-    const double dx = r[6], dy = r[7], dz = r[8];  // d3
+    const double dx = r6[j], dy = r7[j], dz = r8[j];  // d3
     const double l = rest[j];
     const double ux = ex / l, uy = ey / l, uz = ez / l;
     const double axial = ux * dx + uy * dy + uz * dz;
@@ -167,7 +185,8 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
   }
   if (s.angular_drag > 0.0) {
     for (int j = 0; j < m; ++j) {
-      torque[j] -= s.angular_drag * (rot[j] * md.inertia[j].cwiseProduct(st.omega[j]));
+      torque[j] -=
+          s.angular_drag * (ws.frame_rotation(j) * md.inertia[j].cwiseProduct(st.omega[j]));
     }
   }
   // Clamps: half vertices between the clamp frames and the end frames.
@@ -178,7 +197,7 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
                md.vertex_stiffness[0], md.rest_darboux[0], st.base_torque, ws.torque[0]);
   }
   if (md.vertex_active[m]) {
-    bend_twist(st.q[m - 1], ws.rot[m - 1], st.tip_frame, md.vertex_length[m],
+    bend_twist(st.q[m - 1], ws.frame_rotation(m - 1), st.tip_frame, md.vertex_length[m],
                md.vertex_stiffness[m], md.rest_darboux[m], ws.torque[m - 1], st.tip_torque);
   }
   // Stiffness-proportional internal damping (Rayleigh beta): resists the rates of bending,
@@ -186,16 +205,18 @@ void accumulate_forces(const RodModel& md, const RodSettings& s, RodState& st, R
   if (s.internal_damping > 0.0) {
     const double beta = s.internal_damping;
     for (int k = 1; k < m; ++k) {  // vertex k between frames k-1 and k
-      const Vec3 rel_w = ws.rot[k] * st.omega[k] - ws.rot[k - 1] * st.omega[k - 1];
-      const Vec3 rel_a = ws.rot[k - 1].transpose() * rel_w;
-      const Vec3 t = ws.rot[k - 1] *
-                     ((beta / md.vertex_length[k]) * md.vertex_stiffness[k].cwiseProduct(rel_a));
+      const Mat3 ra = ws.frame_rotation(k - 1), rb = ws.frame_rotation(k);
+      const Vec3 rel_w = rb * st.omega[k] - ra * st.omega[k - 1];
+      const Vec3 rel_a = ra.transpose() * rel_w;
+      const Vec3 t =
+          ra * ((beta / md.vertex_length[k]) * md.vertex_stiffness[k].cwiseProduct(rel_a));
       ws.torque[k - 1] += t;
       ws.torque[k] -= t;
     }
     for (int j = 0; j < m; ++j) {
-      const Vec3 d3 = ws.rot[j].col(2);
-      const Vec3 wd3 = (ws.rot[j] * st.omega[j]).cross(d3);
+      const Mat3 rj = ws.frame_rotation(j);
+      const Vec3 d3 = rj.col(2);
+      const Vec3 wd3 = (rj * st.omega[j]).cross(d3);
       Vec3 rate = (st.v[j + 1] - st.v[j]) / md.rest_length[j] - wd3;
       rate -= rate.dot(d3) * d3;  // shear rate only, like the penalty itself
       const Vec3 f = beta * md.kp[j] * rate;
@@ -225,26 +246,47 @@ void rod_forces(const RodModel& md, const RodSettings& s, RodState& st, RodWorks
   accumulate_forces(md, s, st, ws);
 }
 
-void rod_integrate_velocities(const RodModel& md, const RodSettings& s, RodState& st,
-                              RodWorkspace& ws) {
+VCSIM_SIMD_CLONES void rod_integrate_velocities(const RodModel& md, const RodSettings& s,
+                                                RodState& st, RodWorkspace& ws) {
   // Semi-implicit: velocities first from the forces at the current positions (held nodes and
   // prescribed frames have zero inverse mass and keep their prescribed velocities).
   const double dt = s.dt;
-  Vec3* __restrict vel = st.v.data();
-  Vec3* __restrict w = st.omega.data();
-  const Vec3* __restrict f = ws.force.data();
-  const Vec3* __restrict tau = ws.torque.data();
-  const Mat3* __restrict rot = ws.rot.data();
+  const int n = md.n, m = md.m;  // locals: the loop bounds must not be re-read after stores
+  double* __restrict V = st.v[0].data();
+  double* __restrict W = st.omega[0].data();
+  const double* __restrict F = ws.force[0].data();
+  const double* __restrict T = ws.torque[0].data();
   const double* __restrict inv_m = ws.inv_mass.data();
   const double* __restrict free = ws.frame_free.data();
-  const Vec3* __restrict inertia = md.inertia.data();
-  const Vec3* __restrict inv_inertia = md.inv_inertia.data();
-  for (int i = 0; i < md.n; ++i) vel[i] += (dt * inv_m[i]) * f[i];
-  for (int j = 0; j < md.m; ++j) {
-    const Vec3 tau_body = rot[j].transpose() * tau[j];
-    // Prescribed frames (free = 0) keep their angular velocity.
-    const Vec3 w_new = integrate_spin(w[j], inertia[j], inv_inertia[j], tau_body, dt);
-    w[j] = free[j] != 0.0 ? w_new : w[j];  // a select, not a branch: the loop stays SIMD
+  const double* __restrict I = md.inertia[0].data();
+  const double* __restrict IL = md.inv_inertia[0].data();
+  const double* __restrict r0 = ws.rot.data();  // layout: RodWorkspace::rot
+  const double* __restrict r1 = r0 + m, * __restrict r2 = r1 + m, * __restrict r3 = r2 + m, * __restrict r4 = r3 + m, * __restrict r5 = r4 + m, * __restrict r6 = r5 + m, * __restrict r7 = r6 + m, * __restrict r8 = r7 + m;
+#pragma GCC ivdep
+  for (int i = 0; i < n; ++i) {
+    const double h = dt * inv_m[i];
+    V[3 * i] += h * F[3 * i];
+    V[3 * i + 1] += h * F[3 * i + 1];
+    V[3 * i + 2] += h * F[3 * i + 2];
+  }
+  // All ones for a free frame (a scalar loop: SSE2 has no 64-bit integer compare).
+  std::uint64_t* __restrict keep_new = ws.frame_mask.data();
+  for (int j = 0; j < m; ++j) keep_new[j] = free[j] != 0.0 ? ~std::uint64_t{0} : 0;
+    // Per frame: the torque in body coordinates (R^T tau), then Euler's equations (integrate_spin).
+#pragma GCC ivdep
+  for (int j = 0; j < m; ++j) {
+    const double t0 = T[3 * j], t1 = T[3 * j + 1], t2 = T[3 * j + 2];
+    const double tau_body[3] = {r0[j] * t0 + r1[j] * t1 + r2[j] * t2,
+                                r3[j] * t0 + r4[j] * t1 + r5[j] * t2,
+                                r6[j] * t0 + r7[j] * t1 + r8[j] * t2};
+    const double w0 = W[3 * j], w1 = W[3 * j + 1], w2 = W[3 * j + 2];
+    double wn[3];
+    integrate_spin_scalar(W + 3 * j, I + 3 * j, IL + 3 * j, tau_body, dt, wn);
+    // Prescribed frames (free = 0) keep their angular velocity. The choice is a bit mask, not a
+    // branch: GCC sinks the work of a ?: into a branch it then cannot vectorise.
+    W[3 * j] = select_bits(keep_new[j], wn[0], w0);
+    W[3 * j + 1] = select_bits(keep_new[j], wn[1], w1);
+    W[3 * j + 2] = select_bits(keep_new[j], wn[2], w2);
   }
 }
 
@@ -265,15 +307,17 @@ void rod_distance_iteration(const RodModel& md, const RodSettings& s, RodState& 
   }
 }
 
-void rod_integrate_positions(const RodModel& md, const RodSettings& s, RodState& st,
-                             RodWorkspace&) {
+VCSIM_SIMD_CLONES void rod_integrate_positions(const RodModel& md, const RodSettings& s,
+                                               RodState& st, RodWorkspace&) {
   const double dt = s.dt;
-  Vec3* __restrict x = st.x.data();
-  const Vec3* __restrict v = st.v.data();
+  const int n = md.n, m = md.m;
+  double* __restrict X = st.x[0].data();
+  const double* __restrict V = st.v[0].data();
   Quat* __restrict q = st.q.data();
   const Vec3* __restrict w = st.omega.data();
-  for (int i = 0; i < md.n; ++i) x[i] += dt * v[i];
-  for (int j = 0; j < md.m; ++j) q[j] = integrate_rotation(q[j], w[j], dt);
+#pragma GCC ivdep
+  for (int i = 0; i < 3 * n; ++i) X[i] += dt * V[i];
+  for (int j = 0; j < m; ++j) q[j] = integrate_rotation(q[j], w[j], dt);
 }
 
 void rod_end_step(const RodModel& md, const RodSettings& s, RodState& st, const RodWorkspace& ws) {
