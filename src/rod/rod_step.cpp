@@ -65,8 +65,8 @@ VCSIM_SIMD_CLONES void accumulate_forces(const RodModel& md, const RodSettings& 
   // would reload every array's address after each store. GCC's dependence analysis does not use
   // __restrict on local pointers, so the loops that must vectorise say `ivdep` (no iteration
   // reads what another one writes).
-  Vec3* __restrict force = ws.force.data();
-  Vec3* __restrict torque = ws.torque.data();
+  Vec3* force = ws.force.data();
+  Vec3* torque = ws.torque.data();
   const Vec3* __restrict x = st.x.data();
   const Vec3* __restrict v = st.v.data();
   const Quat* __restrict q = st.q.data();
@@ -154,7 +154,7 @@ VCSIM_SIMD_CLONES void accumulate_forces(const RodModel& md, const RodSettings& 
   px[0] = py[0] = pz[0] = 0.0;
   px[m + 1] = py[m + 1] = pz[m + 1] = 0.0;
   const double* __restrict te = st.tau_ext[0].data();
-  double* __restrict T = torque[0].data();
+  double* T = torque[0].data();  // not __restrict: the clamps below add through ws.torque
 #pragma GCC ivdep
   for (int j = 0; j < m; ++j) {
     const double ex = X[3 * j + 3] - X[3 * j], ey = X[3 * j + 4] - X[3 * j + 1],
@@ -175,7 +175,7 @@ VCSIM_SIMD_CLONES void accumulate_forces(const RodModel& md, const RodSettings& 
   // 4. Node forces: gravity, applied loads, mass-proportional drag, the penalty of both edges.
   const double* __restrict V = v[0].data();
   const double* __restrict fe = st.f_ext[0].data();
-  double* __restrict F = force[0].data();
+  double* F = force[0].data();  // not __restrict: the stretch penalty adds through ws.force
   const double g0 = s.gravity.x(), g1 = s.gravity.y(), g2 = s.gravity.z();
   const double drag = s.drag;
   for (int i = 0; i < n; ++i) {
@@ -183,10 +183,18 @@ VCSIM_SIMD_CLONES void accumulate_forces(const RodModel& md, const RodSettings& 
     F[3 * i + 1] = mass[i] * (g1 - drag * V[3 * i + 1]) + fe[3 * i + 1] + (py[i + 1] - py[i]);
     F[3 * i + 2] = mass[i] * (g2 - drag * V[3 * i + 2]) + fe[3 * i + 2] + (pz[i + 1] - pz[i]);
   }
+  const double* __restrict Wb = st.omega[0].data();  // body-frame angular velocities
   if (s.angular_drag > 0.0) {
+    // tau -= c R (I omega), as Eigen evaluated it: (c R) u, row 2 summed as p0 + (p1 + p2).
+    const double c = s.angular_drag;
+    const double* __restrict I = md.inertia[0].data();
+#pragma GCC ivdep
     for (int j = 0; j < m; ++j) {
-      torque[j] -=
-          s.angular_drag * (ws.frame_rotation(j) * md.inertia[j].cwiseProduct(st.omega[j]));
+      const double u0 = I[3 * j] * Wb[3 * j], u1 = I[3 * j + 1] * Wb[3 * j + 1],
+                   u2 = I[3 * j + 2] * Wb[3 * j + 2];
+      T[3 * j] -= (c * r0[j]) * u0 + (c * r3[j]) * u1 + (c * r6[j]) * u2;
+      T[3 * j + 1] -= (c * r1[j]) * u0 + (c * r4[j]) * u1 + (c * r7[j]) * u2;
+      T[3 * j + 2] -= (c * r2[j]) * u0 + ((c * r5[j]) * u1 + (c * r8[j]) * u2);
     }
   }
   // Clamps: half vertices between the clamp frames and the end frames.
@@ -204,26 +212,85 @@ VCSIM_SIMD_CLONES void accumulate_forces(const RodModel& md, const RodSettings& 
   // twisting and of the parallel-constraint strain, never rigid motion.
   if (s.internal_damping > 0.0) {
     const double beta = s.internal_damping;
-    for (int k = 1; k < m; ++k) {  // vertex k between frames k-1 and k
-      const Mat3 ra = ws.frame_rotation(k - 1), rb = ws.frame_rotation(k);
-      const Vec3 rel_w = rb * st.omega[k] - ra * st.omega[k - 1];
-      const Vec3 rel_a = ra.transpose() * rel_w;
-      const Vec3 t =
-          ra * ((beta / md.vertex_length[k]) * md.vertex_stiffness[k].cwiseProduct(rel_a));
-      ws.torque[k - 1] += t;
-      ws.torque[k] -= t;
+    // Vertex k between frames a = k - 1 and b = k: t_k = R_a ((beta / l) K (R_a^T (R_b w_b -
+    // R_a w_a))), added to frame a and taken from frame b. Stored per vertex (in gx, gy, gz,
+    // free again after the bending pass), then summed per frame in the loop's order. Products
+    // R v sum row 2 as p0 + (p1 + p2), as Eigen's 3 x 3 product did before this was written on
+    // arrays, so that the results (and the chaotic default scenario) stayed bit for bit.
+#pragma GCC ivdep
+    for (int k = 1; k < m; ++k) {
+      const int ja = k - 1, jb = k;
+      const double* wa = Wb + 3 * ja;
+      const double* wb = Wb + 3 * jb;
+      const double rw0 = (r0[jb] * wb[0] + r3[jb] * wb[1] + r6[jb] * wb[2]) -
+                         (r0[ja] * wa[0] + r3[ja] * wa[1] + r6[ja] * wa[2]);
+      const double rw1 = (r1[jb] * wb[0] + r4[jb] * wb[1] + r7[jb] * wb[2]) -
+                         (r1[ja] * wa[0] + r4[ja] * wa[1] + r7[ja] * wa[2]);
+      const double rw2 = (r2[jb] * wb[0] + (r5[jb] * wb[1] + r8[jb] * wb[2])) -
+                         (r2[ja] * wa[0] + (r5[ja] * wa[1] + r8[ja] * wa[2]));
+      const double ra0 = r0[ja] * rw0 + r1[ja] * rw1 + r2[ja] * rw2;
+      const double ra1 = r3[ja] * rw0 + r4[ja] * rw1 + r5[ja] * rw2;
+      const double ra2 = r6[ja] * rw0 + r7[ja] * rw1 + r8[ja] * rw2;
+      const double c = beta / lv[k];
+      const double s0 = c * (K[3 * k] * ra0), s1 = c * (K[3 * k + 1] * ra1),
+                   s2 = c * (K[3 * k + 2] * ra2);
+      gx[k] = r0[ja] * s0 + r3[ja] * s1 + r6[ja] * s2;
+      gy[k] = r1[ja] * s0 + r4[ja] * s1 + r7[ja] * s2;
+      gz[k] = r2[ja] * s0 + (r5[ja] * s1 + r8[ja] * s2);
     }
+    if (m >= 2) {
+      T[0] += gx[1];
+      T[1] += gy[1];
+      T[2] += gz[1];
+#pragma GCC ivdep
+      for (int j = 1; j + 1 < m; ++j) {
+        T[3 * j] = (T[3 * j] - gx[j]) + gx[j + 1];
+        T[3 * j + 1] = (T[3 * j + 1] - gy[j]) + gy[j + 1];
+        T[3 * j + 2] = (T[3 * j + 2] - gz[j]) + gz[j + 1];
+      }
+      T[3 * (m - 1)] -= gx[m - 1];
+      T[3 * (m - 1) + 1] -= gy[m - 1];
+      T[3 * (m - 1) + 2] -= gz[m - 1];
+    }
+    // Edge j: the shear rate (v_{j+1} - v_j) / l - (R w) x d3 without its d3 part, damped by
+    // beta K_p as a force pair on the nodes (stored per edge in px, py, pz, then summed per node
+    // in the loop's order) and a torque on the frame.
+#pragma GCC ivdep
     for (int j = 0; j < m; ++j) {
-      const Mat3 rj = ws.frame_rotation(j);
-      const Vec3 d3 = rj.col(2);
-      const Vec3 wd3 = (rj * st.omega[j]).cross(d3);
-      Vec3 rate = (st.v[j + 1] - st.v[j]) / md.rest_length[j] - wd3;
-      rate -= rate.dot(d3) * d3;  // shear rate only, like the penalty itself
-      const Vec3 f = beta * md.kp[j] * rate;
-      ws.force[j] += f;
-      ws.force[j + 1] -= f;
-      ws.torque[j] += (beta * md.kp[j] * md.rest_length[j]) * d3.cross(rate);
+      const double dx = r6[j], dy = r7[j], dz = r8[j];
+      const double* w = Wb + 3 * j;
+      const double q0 = r0[j] * w[0] + r3[j] * w[1] + r6[j] * w[2];
+      const double q1 = r1[j] * w[0] + r4[j] * w[1] + r7[j] * w[2];
+      const double q2 = r2[j] * w[0] + (r5[j] * w[1] + r8[j] * w[2]);
+      const double l = rest[j];
+      double e0 = (V[3 * j + 3] - V[3 * j]) / l - (q1 * dz - q2 * dy);
+      double e1 = (V[3 * j + 4] - V[3 * j + 1]) / l - (q2 * dx - q0 * dz);
+      double e2 = (V[3 * j + 5] - V[3 * j + 2]) / l - (q0 * dy - q1 * dx);
+      const double along = e0 * dx + e1 * dy + e2 * dz;  // shear rate only, like the penalty
+      e0 -= along * dx;
+      e1 -= along * dy;
+      e2 -= along * dz;
+      const double bk = beta * kp[j];
+      px[j] = bk * e0;
+      py[j] = bk * e1;
+      pz[j] = bk * e2;
+      const double bkl = bk * l;
+      T[3 * j] += bkl * (dy * e2 - dz * e1);
+      T[3 * j + 1] += bkl * (dz * e0 - dx * e2);
+      T[3 * j + 2] += bkl * (dx * e1 - dy * e0);
     }
+    F[0] += px[0];
+    F[1] += py[0];
+    F[2] += pz[0];
+#pragma GCC ivdep
+    for (int i = 1; i < m; ++i) {
+      F[3 * i] = (F[3 * i] - px[i - 1]) + px[i];
+      F[3 * i + 1] = (F[3 * i + 1] - py[i - 1]) + py[i];
+      F[3 * i + 2] = (F[3 * i + 2] - pz[i - 1]) + pz[i];
+    }
+    F[3 * m] -= px[m - 1];
+    F[3 * m + 1] -= py[m - 1];
+    F[3 * m + 2] -= pz[m - 1];
   }
   if (s.distance == DistanceMethod::kPenalty) {
     for (int j = 0; j < m; ++j) {
