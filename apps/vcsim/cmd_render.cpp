@@ -87,17 +87,7 @@ void apply(const RenderOptions& o, FluoroRenderer& r, CArmPose& pose, const Scen
            ImageChainSettings& chain) {
   // The table is panned so that the left coronary tree (its centreline points' mean) is at the
   // isocentre, as an operator centres the vessels of interest.
-  const auto c = left_coronary_contrast(s.tree, 1.0f);
-  Vec3 sum = Vec3::Zero();
-  int count = 0;
-  for (int i = 0; i < s.tree.num_segments(); ++i)
-    if (c[i] > 0.0f)
-      for (const Vec3& q : s.tree.segments[i].points) {
-        sum += q;
-        ++count;
-      }
-  pose.isocentre =
-      count > 0 ? Vec3(sum / count) : (s.tree.heart ? s.tree.heart->centre : Vec3::Zero());
+  pose.isocentre = left_coronary_centre(s.tree);
   r.set_beam_energy(o.energy_kev == 80 ? BeamEnergy::k80keV : BeamEnergy::k60keV);
   chain.dose = o.dose;
   chain.seed = o.seed;

@@ -153,22 +153,6 @@ CArmPose pose_of(const Scenario& sc) {
   return pose;
 }
 
-// Where the operator centres the table: the left coronary tree, or the leading tip when
-// follow_tip is on and the tip is far from it.
-Vec3 heart_centre(const VesselTree& tree) {
-  const int lm = tree.find("left_main");
-  Vec3 sum = Vec3::Zero();
-  int count = 0;
-  for (int i = 0; i < tree.num_segments(); ++i)
-    if (lm >= 0 && is_descendant(tree, i, lm))
-      for (const Vec3& q : tree.segments[i].points) {
-        sum += q;
-        ++count;
-      }
-  if (count > 0) return sum / count;
-  return tree.heart ? tree.heart->centre : Vec3::Zero();
-}
-
 class ProgressBar {
  public:
   explicit ProgressBar(bool on) : on_(on && isatty(STDERR_FILENO)) {}
@@ -432,7 +416,8 @@ int cmd_run(const RunOptions& o) {
     film = std::make_unique<FrameWriter>(
         sim, sc.fluoro.size, sc.fluoro.energy_kev == 80 ? BeamEnergy::k80keV : BeamEnergy::k60keV,
         chain, frames_dir);
-  const Vec3 centre = heart_centre(sim.tree());
+  // The table centred on the left coronary tree; RunDisplay pans to the tip when it is far.
+  const Vec3 centre = left_coronary_centre(sim.tree());
   pose.isocentre = centre;
   const double frame_dt = 1.0 / sc.fluoro.fps;
   const double end_time = timeline ? std::min(sc.time_limit, timeline->duration()) : sc.time_limit;

@@ -155,6 +155,9 @@ std::vector<InstrumentVisual> demo_instruments(const VesselTree& tree);
 // Per-segment contrast concentration: `c` for left_main and every segment below it (the left
 // coronary tree), 0 elsewhere.
 std::vector<float> left_coronary_contrast(const VesselTree& tree, float c);
+// Where an operator centres the table for the coronaries: the mean of the left coronary tree's
+// centreline points (left_main and its descendants), else the heart's centre, else the origin.
+Vec3 left_coronary_centre(const VesselTree& tree);
 
 // ---------------------------------------------------------------------------------------------
 // GL: a headless context and the path-length renderer

@@ -348,4 +348,18 @@ std::vector<float> left_coronary_contrast(const VesselTree& tree, float c) {
   return out;
 }
 
+Vec3 left_coronary_centre(const VesselTree& tree) {
+  const std::vector<float> left = left_coronary_contrast(tree, 1.0f);
+  Vec3 sum = Vec3::Zero();
+  int count = 0;
+  for (int i = 0; i < tree.num_segments(); ++i)
+    if (left[i] > 0.0f)
+      for (const Vec3& q : tree.segments[i].points) {
+        sum += q;
+        ++count;
+      }
+  if (count > 0) return sum / count;
+  return tree.heart ? tree.heart->centre : Vec3::Zero();
+}
+
 }  // namespace vcsim
