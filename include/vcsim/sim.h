@@ -16,6 +16,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "vcsim/anatomy.h"
@@ -243,6 +244,7 @@ class Simulator {
   std::vector<DriveState> backup_drive_;
   ContrastModel contrast_;
   std::vector<Vec3> old_tips_;
+  std::vector<std::pair<int, int>> landmark_ids_;  // (landmark) instrument and segment index
   double next_landmark_check_ = 0.0;
   double time_ = 0.0;
   SimMetrics metrics_;
@@ -354,6 +356,7 @@ class Autopilot {
   double phase_start_ = 0.0;
   std::vector<double> depth_, roll_, roll_target_;  // (instrument) commanded, m and rad
   int leader_ = -1, follower_ = -1;
+  int relative_ = -1;  // the instrument a withdraw phase's depth is relative to, or -1
   int goal_segment_ = -1;
   double goal_distance_ = 0.0;           // m from the goal segment's first point
   std::vector<Vec3> route_;              // current navigation route (rest anatomy)

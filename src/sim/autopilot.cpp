@@ -95,6 +95,7 @@ void Autopilot::start_phase(const Simulator& sim) {
     return h.instrument == leader_ || h.instrument == sc.find_instrument(ph.follower);
   });
   follower_ = ph.follower.empty() ? -1 : sc.find_instrument(ph.follower);
+  relative_ = ph.relative_to.empty() ? -1 : sc.find_instrument(ph.relative_to);
   status_ = std::string(to_string(ph.kind)) + (ph.instrument.empty() ? "" : " " + ph.instrument);
   if (ph.kind != AutopilotPhase::Kind::kNavigate) return;
   const VesselTree& tree = sim.tree();
@@ -272,8 +273,8 @@ void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
         }
         break;
       case AutopilotPhase::Kind::kWithdraw: {
-        const int r = ph.relative_to.empty() ? -1 : sc.find_instrument(ph.relative_to);
-        const double target = std::max(0.0, r >= 0 ? sim.depth(r) - ph.depth : ph.depth);
+        const double target =
+            std::max(0.0, relative_ >= 0 ? sim.depth(relative_) - ph.depth : ph.depth);
         const double step = ph.speed * dt;
         depth_[leader_] += std::clamp(target - depth_[leader_], -step, step);
         if (std::abs(sim.depth(leader_) - target) < 0.5e-3) {

@@ -82,9 +82,17 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
   const std::string& src = sc_.source;
   tree_ = load_anatomy(sc_);
   // Check every name before the expensive build.
-  for (std::size_t i = 0; i < sc_.landmarks.size(); ++i)
-    segment_named(tree_, sc_.landmarks[i].segment, src,
-                  "landmarks[" + std::to_string(i) + "].segment");
+  // Landmarks resolved to indices once (the scenario parser checked the instrument names).
+  for (std::size_t i = 0; i < sc_.landmarks.size(); ++i) {
+    const int seg = segment_named(tree_, sc_.landmarks[i].segment, src,
+                                  "landmarks[" + std::to_string(i) + "].segment");
+    const int inst = sc_.find_instrument(sc_.landmarks[i].instrument);
+    if (inst < 0)
+      throw InputError(
+          src, "landmarks[" + std::to_string(i) + "].instrument",
+          "expected an instrument of the scenario, got '" + sc_.landmarks[i].instrument + "'");
+    landmark_ids_.push_back({inst, seg});
+  }
   for (std::size_t i = 0; i < sc_.autopilot.size(); ++i)
     if (sc_.autopilot[i].kind == AutopilotPhase::Kind::kNavigate)
       segment_named(tree_, sc_.autopilot[i].goal_segment, src,
@@ -349,10 +357,9 @@ void Simulator::update_metrics(const std::vector<Vec3>& old_tips) {
     LandmarkRecord& rec = metrics_.landmarks[k];
     if (rec.reached) continue;
     const Landmark& l = sc_.landmarks[k];
-    const int i = sc_.find_instrument(l.instrument);
+    const auto [i, seg] = landmark_ids_[k];
     if (insts_[i].drive.depth <= 0.0) continue;
     const TreeHit h = tip_location(i);
-    const int seg = tree_.find(l.segment);
     if (h.loc.segment == seg && h.loc.distance >= ostium_distance(tree_, seg) + l.distance &&
         h.outside < 0.5e-3) {
       rec.reached = true;
