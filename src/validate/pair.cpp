@@ -35,7 +35,7 @@ PairScene make_pair_scene(const PairOptions& o) {
   tube.ring_spacing = 2e-3;
   sc.mesh = make_bent_tube(tube);
   check_and_repair(sc.mesh, "pair tube");
-  sc.tree.build(sc.mesh);
+  sc.tree.build(sc.mesh, AabbTreeSettings::for_static_mesh());
 
   SolverSettings& s = sc.settings;
   s.rod.dt = o.dt;
