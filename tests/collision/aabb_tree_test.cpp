@@ -205,6 +205,44 @@ TEST(AabbTree, LeafCacheQueriesEqualFullQueries) {
   EXPECT_GT(touching, 1000);  // the walk does meet the wall
 }
 
+// A static wall's tree without the fat margin answers exactly as the default tree, bit for bit,
+// through full and cached queries (AabbTreeSettings::for_static_mesh), while its leaf boxes are
+// tighter.
+TEST(AabbTree, StaticMeshTreeGivesTheSameContacts) {
+  TriangleMesh m = make_bent_tube(bench_like_spec());
+  check_and_repair(m);
+  AabbTree fat, tight;
+  fat.build(m);
+  tight.build(m, AabbTreeSettings::for_static_mesh());
+  ASSERT_EQ(fat.nodes().size(), tight.nodes().size());
+  EXPECT_LT((tight.nodes()[1].box.hi - tight.nodes()[1].box.lo).sum(),
+            (fat.nodes()[1].box.hi - fat.nodes()[1].box.lo).sum());
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  int touching = 0;
+  for (int i = 0; i < 4000; ++i) {
+    // Around the wall of the straight part (at 3 mm) and beyond it.
+    const double a = 3.14159 * u(rng);
+    const double r = 2.8e-3 + 0.6e-3 * u(rng);
+    const Vec3 c(r * std::cos(a), r * std::sin(a), 20e-3 * (1.0 + u(rng)));
+    const double radius = 0.45e-3 + 0.2e-3 * u(rng);
+    const SphereContact x = fat.query_sphere(m, c, radius);
+    const SphereContact y = tight.query_sphere(m, c, radius);
+    LeafCache cache;
+    const SphereContact z = tight.query_sphere(m, c, radius, 0.1e-3, cache);
+    for (const SphereContact* q : {&y, &z}) {
+      ASSERT_EQ(q->touching, x.touching) << "sphere " << i;
+      EXPECT_EQ(q->centre_outside, x.centre_outside);
+      EXPECT_EQ(q->depth, x.depth);
+      EXPECT_EQ(q->distance, x.distance);
+      EXPECT_EQ(q->normal, x.normal);
+      EXPECT_EQ(q->triangle, x.triangle);
+    }
+    touching += x.touching;
+  }
+  EXPECT_GT(touching, 500);
+}
+
 // A smooth travelling wave on the wall, like a beating vessel: refit must answer exactly as a
 // tree built from scratch on the moved vertices.
 TEST(AabbTree, RefitAfterDeformationMatchesRebuild) {
