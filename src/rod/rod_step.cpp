@@ -328,7 +328,14 @@ VCSIM_SIMD_CLONES void rod_integrate_velocities(const RodModel& md, const RodSet
   const double* __restrict I = md.inertia[0].data();
   const double* __restrict IL = md.inv_inertia[0].data();
   const double* __restrict r0 = ws.rot.data();  // layout: RodWorkspace::rot
-  const double* __restrict r1 = r0 + m, * __restrict r2 = r1 + m, * __restrict r3 = r2 + m, * __restrict r4 = r3 + m, * __restrict r5 = r4 + m, * __restrict r6 = r5 + m, * __restrict r7 = r6 + m, * __restrict r8 = r7 + m;
+  const double* __restrict r1 = r0 + m;
+  const double* __restrict r2 = r1 + m;
+  const double* __restrict r3 = r2 + m;
+  const double* __restrict r4 = r3 + m;
+  const double* __restrict r5 = r4 + m;
+  const double* __restrict r6 = r5 + m;
+  const double* __restrict r7 = r6 + m;
+  const double* __restrict r8 = r7 + m;
 #pragma GCC ivdep
   for (int i = 0; i < n; ++i) {
     const double h = dt * inv_m[i];
@@ -338,8 +345,10 @@ VCSIM_SIMD_CLONES void rod_integrate_velocities(const RodModel& md, const RodSet
   }
   // All ones for a free frame (a scalar loop: SSE2 has no 64-bit integer compare).
   std::uint64_t* __restrict keep_new = ws.frame_mask.data();
-  for (int j = 0; j < m; ++j) keep_new[j] = free[j] != 0.0 ? ~std::uint64_t{0} : 0;
-    // Per frame: the torque in body coordinates (R^T tau), then Euler's equations (integrate_spin).
+  for (int j = 0; j < m; ++j) {
+    keep_new[j] = free[j] != 0.0 ? ~std::uint64_t{0} : 0;
+  }
+  // Per frame: the torque in body coordinates (R^T tau), then integrate_spin.
 #pragma GCC ivdep
   for (int j = 0; j < m; ++j) {
     const double t0 = T[3 * j], t1 = T[3 * j + 1], t2 = T[3 * j + 2];
