@@ -83,7 +83,8 @@ void drive_end(Instrument& inst) {
 // the free part exerts across the boundary on the held part less the free part's inertia and
 // mass-proportional drag, both artefacts of mass scaling, and never sees the held part's own
 // (scaled) mass. An optional first-order low-pass smooths it for a haptic device.
-void drive_feedback(Instrument& inst, const SolverSettings& set) {
+// `coupled`: some coupling may have put impulses on this instrument's nodes this step.
+void drive_feedback(Instrument& inst, const SolverSettings& set, bool coupled) {
   const RodModel& md = inst.model;
   const RodState& st = inst.state;
   const double dt = set.rod.dt;
@@ -96,19 +97,27 @@ void drive_feedback(Instrument& inst, const SolverSettings& set) {
   for (const NodeContact& c : inst.contacts) {
     add(c.node, ((c.lambda_n - c.lambda_bias) * c.normal + c.lambda_t) / dt);
   }
-  for (int i = 0; i < md.n; ++i) {
-    if (inst.coupling_impulse[i] != Vec3::Zero()) add(i, inst.coupling_impulse[i] / dt);
+  if (coupled) {
+    for (int i = 0; i < md.n; ++i) {
+      if (inst.coupling_impulse[i] != Vec3::Zero()) add(i, inst.coupling_impulse[i] / dt);
+    }
   }
-  // Gravity through the first mass moment (sum m_i (x_i - a)) x g; applied loads one by one.
-  double mass = 0.0;
-  Vec3 moment = Vec3::Zero();
+  // Applied loads one by one; gravity through the first mass moment (sum m_i (x_i - a)) x g.
+  // The loops over every node are skipped where they would add nothing: in the compression
+  // experiment they cost as many instructions as the rod's whole position update.
   for (int i = inst.drive.first_free; i < md.n; ++i) {
-    mass += md.node_mass[i];
-    moment += md.node_mass[i] * (st.x[i] - a);
     if (st.f_ext[i] != Vec3::Zero()) add(i, st.f_ext[i]);
   }
-  f += mass * set.rod.gravity;
-  m += moment.cross(set.rod.gravity);
+  if (set.rod.gravity != Vec3::Zero()) {
+    double mass = 0.0;
+    Vec3 moment = Vec3::Zero();
+    for (int i = inst.drive.first_free; i < md.n; ++i) {
+      mass += md.node_mass[i];
+      moment += md.node_mass[i] * (st.x[i] - a);
+    }
+    f += mass * set.rod.gravity;
+    m += moment.cross(set.rod.gravity);
+  }
   for (int j = std::max(0, inst.drive.first_free - 1); j < md.m; ++j) m += st.tau_ext[j];
   // The hand holds the rod against these loads: > 0 when they push the rod back out.
   const Vec3 axis = inst.sheath.frame * Vec3::UnitZ();
@@ -543,7 +552,7 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
     if (in.parked) continue;
     if (in.driven) {
       drive_end(in);
-      drive_feedback(in, set);
+      drive_feedback(in, set, !couplings.empty());
     }
     rod_end_step(in.model, rs, in.state, in.ws);
   }
