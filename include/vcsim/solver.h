@@ -39,9 +39,14 @@ class VesselWall {
 };
 
 // A wall that does not move: a lumen mesh and its AABB tree (owned elsewhere, must outlive it).
+// The cached queries of a batch are independent (each writes its own contact and leaf cache), so
+// a batch of at least `parallel_min` spheres is split across the TBB worker threads, in chunks of
+// at least kParallelChunk; the results do not depend on the number of threads. 0: always serial.
 class StaticWall final : public VesselWall {
  public:
-  StaticWall(const TriangleMesh& mesh, const AabbTree& tree) : mesh_(&mesh), tree_(&tree) {}
+  static constexpr int kParallelChunk = 8;
+  StaticWall(const TriangleMesh& mesh, const AabbTree& tree, int parallel_min = 2 * kParallelChunk)
+      : mesh_(&mesh), tree_(&tree), parallel_min_(parallel_min) {}
   void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
                      std::span<SphereContact> out) override;
   void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
@@ -51,6 +56,7 @@ class StaticWall final : public VesselWall {
  private:
   const TriangleMesh* mesh_;
   const AabbTree* tree_;
+  int parallel_min_;
 };
 
 // Coulomb friction between an instrument and the vessel wall.

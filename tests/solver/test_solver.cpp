@@ -267,3 +267,31 @@ TEST(Solver, HandForceLowPassIsFirstOrder) {
   bad.feedback_cutoff_hz = -1.0;
   EXPECT_THROW(bad.validate(), InputError);
 }
+
+// The wall queries of a step may run on several threads; each writes only its own contact and
+// leaf cache, so the steps are the same bit for bit whether the batches split or not.
+TEST(Solver, ParallelWallQueriesGiveTheSameSteps) {
+  StraightTube tube(1.0e-3, 0.08, /*cap=*/true);  // narrow: most nodes are queried every step
+  RodDef d = test_rod(0.1, 80);
+  d.density = scaled_density(d, 1e-3);
+  SolverSettings s;
+  s.rod.dt = 1e-3;
+  s.rod.drag = 20.0;
+  const DriveCommand push{DriveCommand::Mode::kVelocity, 0.05, 2.0};
+  auto run = [&](int parallel_min, int& max_queries) {
+    Instrument inst = make_instrument(d, Sheath{}, ContactMaterial{0.1, 0.08}, 0.03);
+    StaticWall wall(tube.mesh, tube.tree, parallel_min);
+    StepProfile prof;
+    for (int k = 0; k < 800; ++k) {
+      instrument_step(inst, &wall, s, push, &prof);
+      max_queries = std::max(max_queries, prof.num_queries);
+    }
+    return inst.state.hash();
+  };
+  int serial_queries = 0, parallel_queries = 0;
+  const std::uint64_t serial = run(0, serial_queries);
+  const std::uint64_t parallel = run(1, parallel_queries);
+  EXPECT_EQ(serial, parallel);
+  EXPECT_EQ(serial_queries, parallel_queries);
+  EXPECT_GE(parallel_queries, 2 * StaticWall::kParallelChunk) << "batches large enough to split";
+}
