@@ -4,6 +4,7 @@
 // (docs/architecture.md).
 #pragma once
 
+#include <array>
 #include <span>
 #include <vector>
 
@@ -132,6 +133,7 @@ struct Instrument {
   std::vector<unsigned char> sheathed;   // (n) 1: inside another instrument's lumen this step
   std::vector<Vec3> coupling_impulse;    // (n) coaxial coupling impulses on each node this step
   double wall_travel = 0.0;              // wall motion bound accumulated since the queries
+  std::array<double, 3> stage_us{};      // profile scratch: this instrument's stage times (us)
 };
 
 // Builds a driven instrument lying on the sheath axis with `depth` inserted. The rod's own
@@ -151,6 +153,9 @@ struct SolverSettings {
   // Optional first-order low-pass of the hand force and torque for a haptic device (Hz);
   // 0 reports the raw signal.
   double feedback_cutoff_hz = 0.0;
+  // Steps with several instruments of 128 nodes or more run each instrument's forces,
+  // integration and distance solve on the TBB threads (same results, bit for bit).
+  bool parallel_instruments = true;
   void validate(const std::string& source = "solver") const;
 };
 

@@ -8,6 +8,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 
@@ -492,6 +493,21 @@ Instrument make_free_instrument(const RodDef& def, const ContactMaterial& contac
   return inst;
 }
 
+// Runs f(k) for every instrument k that is not parked: on the TBB threads when `parallel`, else
+// in order. Each call must touch only its own instrument, so the results are the same either way.
+
+template <class F>
+void for_each_active(std::span<Instrument> insts, bool parallel, F&& f) {
+  if (parallel) {
+    tbb::parallel_for(std::size_t{0}, insts.size(), [&](std::size_t k) {
+      if (!insts[k].parked) f(k);
+    });
+  } else {
+    for (std::size_t k = 0; k < insts.size(); ++k)
+      if (!insts[k].parked) f(k);
+  }
+}
+
 void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings, VesselWall* wall,
                       const SolverSettings& set, std::span<const DriveCommand> cmds,
                       StepProfile* prof) {
@@ -500,21 +516,37 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   StepProfile p;
   auto tick = [&]() { return prof ? now_us() : 0.0; };
   const double t0 = tick();
+  // Several instruments of 128 nodes or more: a region's work per instrument is worth a thread.
+  int large = 0;
+  for (const Instrument& in : insts) large += !in.parked && in.model.n >= 128 ? 1 : 0;
+  const bool parallel = set.parallel_instruments && large >= 2;
+  // Stage times of a region: each instrument records its own (Instrument::stage_us); a parallel
+  // region takes as long as its longest instrument, a serial one as their sum.
+  auto region = [&](int stage) {
+    double r = 0.0;
+    for (const Instrument& in : insts) {
+      if (in.parked) continue;
+      r = parallel ? std::max(r, in.stage_us[stage]) : r + in.stage_us[stage];
+    }
+    return r;
+  };
 
-  // 1. inputs: the drive holds the outside part
-  for (std::size_t k = 0; k < insts.size(); ++k) {
-    if (insts[k].parked) continue;
-    rod_begin_step(insts[k].model, insts[k].ws);
-    std::fill(insts[k].coupling_impulse.begin(), insts[k].coupling_impulse.end(), Vec3::Zero());
-    if (insts[k].driven) drive_begin(insts[k], cmds[k], rs.dt);
-  }
-  const double t1 = tick();
-  // 2. forces, 3. velocities
-  for (Instrument& in : insts)
-    if (!in.parked) rod_forces(in.model, rs, in.state, in.ws);
-  const double t2 = tick();
-  for (Instrument& in : insts)
-    if (!in.parked) rod_integrate_velocities(in.model, rs, in.state, in.ws);
+  // 1. inputs: the drive holds the outside part; 2. forces, 3. velocities
+  for_each_active(insts, parallel, [&](std::size_t k) {
+    Instrument& in = insts[k];
+    const double a = tick();
+    rod_begin_step(in.model, in.ws);
+    std::fill(in.coupling_impulse.begin(), in.coupling_impulse.end(), Vec3::Zero());
+    if (in.driven) drive_begin(in, cmds[k], rs.dt);
+    const double b = tick();
+    rod_forces(in.model, rs, in.state, in.ws);
+    const double c = tick();
+    rod_integrate_velocities(in.model, rs, in.state, in.ws);
+    in.stage_us = {b - a, c - b, tick() - c};
+  });
+  p.drive = region(0);
+  p.forces = region(1);
+  p.integrate_velocities = region(2);
   const double t3 = tick();
   // 4. collision detection: coupling first (sheathed wire nodes skip the wall)
   for (Coupling& c : couplings) {
@@ -533,33 +565,32 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
     }
   }
   const double t4 = tick();
-  // 5. block iterations: distance chains, coaxial coupling, wall contacts with friction
+  // 5. block iterations: distance chains and wall contacts with friction (each instrument on its
+  // own), then the coaxial coupling between them. Walls before coupling: the wire must end each
+  // iteration inside the catheter, and the catheter's wall contacts would otherwise move it away.
   double t_dist = 0.0, t_cont = 0.0;
   for (int it = 0; it < rs.iterations; ++it) {
-    const double a = tick();
-    if (rs.distance != DistanceMethod::kPenalty) {
-      for (Instrument& in : insts)
-        if (!in.parked) rod_distance_iteration(in.model, rs, in.state, in.ws);
-    }
+    for_each_active(insts, parallel, [&](std::size_t k) {
+      Instrument& in = insts[k];
+      const double a = tick();
+      if (rs.distance != DistanceMethod::kPenalty)
+        rod_distance_iteration(in.model, rs, in.state, in.ws);
+      const double b = tick();
+      solve_contacts(in, set);
+      in.stage_us = {b - a, tick() - b, 0.0};
+    });
     const double b = tick();
-    // Walls first, coupling last: the wire must end each iteration inside the catheter, and
-    // the catheter's wall contacts would otherwise move it away from the wire.
-    for (Instrument& in : insts)
-      if (!in.parked) solve_contacts(in, set);
     for (Coupling& c : couplings)
       if (!c.contacts.empty()) solve_coupling(c, insts[c.inner], insts[c.outer], set);
-    if (prof) {
-      t_dist += b - a;
-      t_cont += tick() - b;
-    }
+    t_dist += region(0);
+    t_cont += region(1) + (tick() - b);
   }
   const double t5 = tick();
   // 6. positions, then the coupled wires exactly into their catheters' lumens
-  for (Instrument& in : insts) {
-    if (in.parked) continue;
-    rod_integrate_positions(in.model, rs, in.state, in.ws);
-    remove_contact_bias(in, set);
-  }
+  for_each_active(insts, parallel, [&](std::size_t k) {
+    rod_integrate_positions(insts[k].model, rs, insts[k].state, insts[k].ws);
+    remove_contact_bias(insts[k], set);
+  });
   for (Coupling& c : couplings) {
     if (!insts[c.inner].parked && !insts[c.outer].parked) {
       project_coupling(c, insts[c.inner], insts[c.outer]);
@@ -575,9 +606,6 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   }
   if (prof) {
     const double t6 = tick();
-    p.drive = t1 - t0;
-    p.forces = t2 - t1;
-    p.integrate_velocities = t3 - t2;
     p.collision = t4 - t3;
     p.constraints = t5 - t4;
     p.distance = t_dist;
