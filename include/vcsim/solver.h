@@ -153,7 +153,7 @@ struct SolverSettings {
   // Optional first-order low-pass of the hand force and torque for a haptic device (Hz);
   // 0 reports the raw signal.
   double feedback_cutoff_hz = 0.0;
-  // Steps with several instruments of 128 nodes or more run each instrument's forces,
+  // Steps with several instruments of 256 nodes or more run each instrument's forces,
   // integration and distance solve on the TBB threads (same results, bit for bit).
   bool parallel_instruments = true;
   void validate(const std::string& source = "solver") const;

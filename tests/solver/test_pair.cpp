@@ -83,6 +83,29 @@ TEST(Pair, WireStaysInTheCatheterThroughInsertionRotationAndWithdrawal) {
   EXPECT_LE(worst[2], 1.05 * clearance) << "withdrawal; clearance " << clearance;
 }
 
+// Each instrument's forces, integration, distance solve and wall contacts may run on its own
+// thread; they touch only that instrument, so the steps are the same bit for bit either way.
+TEST(Pair, ParallelInstrumentsGiveTheSameSteps) {
+  PairOptions o;
+  o.nodes = 256;  // the smallest instruments that go parallel
+  auto run = [&](bool parallel) {
+    PairScene sc = make_pair_scene(o);
+    sc.settings.parallel_instruments = parallel;
+    for (const Instrument& in : sc.instruments) EXPECT_GE(in.model.n, 256);
+    StaticWall wall = sc.wall();
+    using M = DriveCommand::Mode;
+    const DriveCommand cmds[] = {{M::kVelocity, 0.02, 2.0}, {M::kVelocity, 0.01, -1.0}};
+    int coupled = 0;
+    for (int k = 0; k < 600; ++k) {
+      step_instruments(sc.instruments, sc.couplings, &wall, sc.settings, cmds);
+      coupled = std::max(coupled, static_cast<int>(sc.couplings[0].contacts.size()));
+    }
+    EXPECT_GT(coupled, 10) << "the coupling must have been active";
+    return std::pair(sc.instruments[0].state.hash(), sc.instruments[1].state.hash());
+  };
+  EXPECT_EQ(run(false), run(true));
+}
+
 namespace {
 
 // Angle (rad) between the sheath axis (+z) and the catheter's edge at arc length s.
