@@ -496,7 +496,6 @@ Instrument make_free_instrument(const RodDef& def, const ContactMaterial& contac
 
 // Runs f(k) for every instrument k that is not parked: on the TBB threads when `parallel`, else
 // in order. Each call must touch only its own instrument, so the results are the same either way.
-
 template <class F>
 void for_each_active(std::span<Instrument> insts, bool parallel, F&& f) {
   if (parallel) {
