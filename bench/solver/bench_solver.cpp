@@ -3,7 +3,6 @@
 // compression` runs it, and in its pushed, compressed state.
 #include <benchmark/benchmark.h>
 
-#include <cmath>
 #include <optional>
 
 #include "vcsim/experiments.h"
@@ -17,13 +16,13 @@ void BM_CompressionStep(benchmark::State& state) {
   CompressionScene sc =
       make_compression_scene(o, DistanceMethod::kGlobal, static_cast<int>(state.range(0)));
   StaticWall wall = sc.wall();
+  const double dt = sc.settings.rod.dt;
   DriveCommand cmd{DriveCommand::Mode::kPosition, o.end_depth, 0.0};
   // Push to the end depth first: the benchmark times the loaded rod against the bend.
-  const int push_steps =
-      static_cast<int>((o.end_depth - o.start_depth) / o.push_speed / sc.settings.rod.dt) + 200;
-  for (int k = 0; k < push_steps; ++k) {
-    cmd.translation =
-        std::min(o.end_depth, o.start_depth + o.push_speed * (k + 1) * sc.settings.rod.dt);
+  const auto push_steps =
+      static_cast<long long>((o.end_depth - o.start_depth) / o.push_speed / dt) + 200;
+  for (long long k = 1; k <= push_steps; ++k) {
+    cmd.translation = compression_depth(o, k, dt);
     instrument_step(sc.inst, &wall, sc.settings, cmd);
   }
   StepProfile prof;
@@ -49,8 +48,7 @@ void BM_CompressionExperimentStep(benchmark::State& state) {
   };
   start();
   const double dt = sc->settings.rod.dt;
-  const auto steps = static_cast<long long>(
-      std::ceil(((o.end_depth - o.start_depth) / o.push_speed + o.settle_time) / dt));
+  const long long steps = compression_steps(o, dt);
   DriveCommand cmd{DriveCommand::Mode::kPosition, o.start_depth, 0.0};
   long long k = 0;
   for (auto _ : state) {
@@ -61,8 +59,7 @@ void BM_CompressionExperimentStep(benchmark::State& state) {
       state.ResumeTiming();
     }
     ++k;
-    cmd.translation =
-        std::min(o.end_depth, o.start_depth + o.push_speed * (static_cast<double>(k) * dt));
+    cmd.translation = compression_depth(o, k, dt);
     instrument_step(sc->inst, &*wall, sc->settings, cmd);
     benchmark::DoNotOptimize(sc->inst.state.x.data());
   }

@@ -59,6 +59,10 @@ struct CompressionScene {
 };
 CompressionScene make_compression_scene(const CompressionOptions& opt, DistanceMethod method,
                                         int iterations);
+// The experiment's schedule: how many steps of `dt` the push and the settling take, and the
+// inserted depth commanded at step k = 1, 2, ... (pushed at push_speed, then held).
+long long compression_steps(const CompressionOptions& opt, double dt);
+double compression_depth(const CompressionOptions& opt, long long k, double dt);
 CompressionRow run_compression(const CompressionOptions& opt, DistanceMethod method,
                                int iterations);
 // The rows of the paper's Table 1 (method, iterations).

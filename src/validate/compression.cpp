@@ -112,6 +112,16 @@ CompressionScene make_compression_scene(const CompressionOptions& o, DistanceMet
   return sc;
 }
 
+long long compression_steps(const CompressionOptions& o, double dt) {
+  const double push_time = (o.end_depth - o.start_depth) / o.push_speed;
+  return static_cast<long long>(std::ceil((push_time + o.settle_time) / dt));
+}
+
+double compression_depth(const CompressionOptions& o, long long k, double dt) {
+  const double t = static_cast<double>(k) * dt;
+  return std::min(o.end_depth, o.start_depth + o.push_speed * t);
+}
+
 CompressionRow run_compression(const CompressionOptions& o, DistanceMethod method, int iterations) {
   CompressionScene sc = make_compression_scene(o, method, iterations);
   Instrument& inst = sc.inst;
@@ -121,8 +131,7 @@ CompressionRow run_compression(const CompressionOptions& o, DistanceMethod metho
                                           o.bend_angle_deg * std::numbers::pi / 180.0, o.straight2);
   DriveCommand cmd;
   cmd.mode = DriveCommand::Mode::kPosition;
-  const double push_time = (o.end_depth - o.start_depth) / o.push_speed;
-  const long long steps = static_cast<long long>(std::ceil((push_time + o.settle_time) / dt));
+  const long long steps = compression_steps(o, dt);
   std::vector<double> total, cons, forces, integ, coll, dist, cont;
   total.reserve(steps);
   CompressionRow row;
@@ -133,8 +142,7 @@ CompressionRow run_compression(const CompressionOptions& o, DistanceMethod metho
   row.penalty_modulus_scale = sc.settings.rod.penalty_modulus_scale;
   StepProfile prof;
   for (long long k = 0; k < steps; ++k) {
-    const double t = static_cast<double>(k + 1) * dt;
-    cmd.translation = std::min(o.end_depth, o.start_depth + o.push_speed * t);
+    cmd.translation = compression_depth(o, k + 1, dt);
     instrument_step(inst, &wall, sc.settings, cmd, &prof);
     total.push_back(prof.total);
     cons.push_back(prof.constraints);
