@@ -384,6 +384,26 @@ void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverS
   }
 }
 
+// The part of each concentric impulse that removed a violation (the radial excess the step
+// began with, taken out in full) is a position fix-up, not a load, like a wall contact's
+// lambda_bias: it is taken out of the impulses the hands feel, with the lumen friction it allowed
+// in proportion. The dynamics keep it (only Instrument::coupling_impulse changes).
+void remove_coupling_bias(const Coupling& cp, Instrument& in, Instrument& out, double dt) {
+  for (const CoaxialContact& c : cp.contacts) {
+    if (c.excess <= 0.0 || c.lambda_n <= 0.0) continue;
+    const double wa = out.ws.inv_mass[c.segment] * (1 - c.t);
+    const double wb = out.ws.inv_mass[c.segment + 1] * c.t;
+    const double k = in.ws.inv_mass[c.node] + (1 - c.t) * wa + c.t * wb;
+    if (k == 0.0) continue;
+    // The impulse that changes the relative normal velocity by excess / dt, at most all of it.
+    const double share = std::min(1.0, c.excess / (dt * k) / c.lambda_n);
+    const Vec3 bias = -share * (c.lambda_n * c.normal + c.lambda_t);  // on the inner node
+    in.coupling_impulse[c.node] -= bias;
+    out.coupling_impulse[c.segment] += (1 - c.t) * bias;
+    out.coupling_impulse[c.segment + 1] += c.t * bias;
+  }
+}
+
 void size_scratch(Instrument& inst) {
   const int n = inst.model.n;
   inst.hits.assign(n, SphereContact{});
@@ -595,6 +615,7 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   for (Coupling& c : couplings) {
     if (!insts[c.inner].parked && !insts[c.outer].parked) {
       project_coupling(c, insts[c.inner], insts[c.outer]);
+      remove_coupling_bias(c, insts[c.inner], insts[c.outer], rs.dt);
     }
   }
   for (Instrument& in : insts) {
