@@ -342,15 +342,25 @@ void project_coupling(const Coupling& cp, Instrument& in, const Instrument& out)
   });
 }
 
+// A concentric contact's inverse masses: the inner node's, the outer edge's two nodes' weighted by
+// their shares (1 - t, t), and k, the inverse of the contact's effective mass.
+struct CouplingWeights {
+  double wp, wa, wb, k;
+};
+CouplingWeights coupling_weights(const CoaxialContact& c, const Instrument& in,
+                                 const Instrument& out) {
+  const double wp = in.ws.inv_mass[c.node];
+  const double wa = out.ws.inv_mass[c.segment] * (1 - c.t);
+  const double wb = out.ws.inv_mass[c.segment + 1] * c.t;
+  return {wp, wa, wb, wp + (1 - c.t) * wa + c.t * wb};
+}
+
 // One projected Gauss-Seidel sweep over the concentric constraints: the inner node may not move
 // further than the clearance from the outer centreline; lumen friction on the relative sliding.
 void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverSettings& set) {
   const double dt = set.rod.dt;
   for (CoaxialContact& c : cp.contacts) {
-    const double wp = in.ws.inv_mass[c.node];
-    const double wa = out.ws.inv_mass[c.segment] * (1 - c.t);
-    const double wb = out.ws.inv_mass[c.segment + 1] * c.t;
-    const double k = wp + (1 - c.t) * wa + c.t * wb;
+    const auto [wp, wa, wb, k] = coupling_weights(c, in, out);
     if (k == 0.0) continue;
     Vec3& vp = in.state.v[c.node];
     Vec3& va = out.state.v[c.segment];
@@ -391,9 +401,7 @@ void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverS
 void remove_coupling_bias(const Coupling& cp, Instrument& in, Instrument& out, double dt) {
   for (const CoaxialContact& c : cp.contacts) {
     if (c.excess <= 0.0 || c.lambda_n <= 0.0) continue;
-    const double wa = out.ws.inv_mass[c.segment] * (1 - c.t);
-    const double wb = out.ws.inv_mass[c.segment + 1] * c.t;
-    const double k = in.ws.inv_mass[c.node] + (1 - c.t) * wa + c.t * wb;
+    const double k = coupling_weights(c, in, out).k;
     if (k == 0.0) continue;
     // The impulse that changes the relative normal velocity by excess / dt, at most all of it.
     const double share = std::min(1.0, c.excess / (dt * k) / c.lambda_n);

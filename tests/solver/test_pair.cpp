@@ -212,8 +212,8 @@ TEST(Pair, JudkinsTipStraightensOverAStiffWireAndRecovers) {
 // the lumen is a position fix-up, not a load, and the hands do not feel it, nor the lumen
 // friction it allows. A straight wire slides through a straight catheter on the sheath axis (no
 // wall, no gravity): nothing loads either. A stretch of the wire is then moved 0.3 mm beyond the
-// clearance; the next step puts it back, and the hands still feel nothing, where the impulses
-// themselves carry mu_lumen x the fix-up along the axis.
+// clearance; the next step puts it back, and the hands feel at most a quarter of the lumen
+// friction the impulses carry along the axis (all of it before the fix-up was taken out).
 TEST(Pair, PuttingAWireNodeBackInTheLumenIsNotFelt) {
   RodDef cd;
   cd.length = 0.1;
