@@ -210,6 +210,16 @@ double estimate_stable_dt(const RodModel& model, const RodSettings& settings);
 // Afterwards estimate_stable_dt(model, {}) >= dt. Returns the added mass (kg).
 double scale_for_time_step(RodModel& model, double dt, double kp_ratio = 20.0);
 
+// The quasi-static instruments (the simulator's, and the wire-in-catheter scene of the pair bench
+// and tests), physics.md 5.4: the parallel-constraint cap for scale_for_time_step, and light
+// damping for settings.dt: mass- and inertia-proportional drag of 0.5 / s (the nodes' scaled mass
+// is small where the shaft is coarse, so a little settles it without loading a long inserted
+// shaft axially) and stiffness-proportional damping of 0.4 dt (it takes out the fast release of
+// stored bending, a catheter's curve whipping round, without loading insertion the way
+// mass-proportional drag does; stable for beta w^2 dt < 1 with w dt <= 1).
+inline constexpr double kQuasiStaticKpRatio = 5.0;
+void set_quasi_static_damping(RodSettings& settings);
+
 // Diagnostics.
 double centreline_length(const RodState& state);
 double max_stretch(const RodModel& model, const RodState& state);  // max |len/rest - 1|

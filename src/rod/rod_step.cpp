@@ -494,4 +494,10 @@ double scale_for_time_step(RodModel& md, double dt, double kp_ratio) {
   return added;
 }
 
+void set_quasi_static_damping(RodSettings& s) {
+  s.drag = 0.5;
+  s.angular_drag = 0.5;
+  s.internal_damping = 0.4 * s.dt;
+}
+
 }  // namespace vcsim

@@ -18,9 +18,6 @@ constexpr double kDeg = std::numbers::pi / 180.0;
 constexpr double kCardiacOutputMlS = 83.0;
 constexpr double kContrastFill = 0.1;  // s, time constant of filling a segment once it arrives
 constexpr double kLandmarkInterval = 0.005;  // s between landmark checks
-constexpr double kDrag = 0.5;                // 1/s, mass- and inertia-proportional damping
-constexpr double kInternalDamping = 0.4;     // beta / dt (stable for beta w^2 dt < 1, w dt <= 1)
-constexpr double kParallelRatio = 5.0;       // K_p cap in units of E I / l^2 (physics.md 5.4)
 
 VesselTree load_anatomy(const Scenario& sc) {
   const std::string& a = sc.anatomy;
@@ -140,13 +137,7 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
 
   SolverSettings& s = settings_;
   s.rod.dt = sc_.dt;
-  // Light damping: the nodes' scaled mass is small where the shaft is coarse, so a little drag
-  // settles it without loading a long inserted shaft axially (physics.md 5.4).
-  s.rod.drag = kDrag;
-  s.rod.angular_drag = kDrag;
-  // Stiffness-proportional damping takes out the fast release of stored bending (a catheter's
-  // curve whipping round) without loading insertion the way mass-proportional drag does.
-  s.rod.internal_damping = kInternalDamping * sc_.dt;
+  set_quasi_static_damping(s.rod);
   s.collisions = true;
   for (std::size_t i = 0; i < specs_.size(); ++i) {
     Discretisation disc;
@@ -159,7 +150,7 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
         def, sheath,
         ContactMaterial{specs_[i].friction.vessel_static, specs_[i].friction.vessel_dynamic}, 0.0);
     // Quasi-static: each node and frame only as heavy as the explicit step needs (physics.md 5.4).
-    scale_for_time_step(inst.model, sc_.dt, kParallelRatio);
+    scale_for_time_step(inst.model, sc_.dt, kQuasiStaticKpRatio);
     insts_.push_back(std::move(inst));
   }
   for (std::size_t i = 0; i < sc_.instruments.size(); ++i) {

@@ -39,8 +39,7 @@ PairScene make_pair_scene(const PairOptions& o) {
 
   SolverSettings& s = sc.settings;
   s.rod.dt = o.dt;
-  s.rod.drag = 20.0;
-  s.rod.angular_drag = 20.0;
+  set_quasi_static_damping(s.rod);
   s.rod.gravity = o.gravity ? Vec3(0, -9.81, 0) : Vec3::Zero();
   s.collisions = o.collisions;
   Discretisation disc;
@@ -49,12 +48,13 @@ PairScene make_pair_scene(const PairOptions& o) {
     RodDef def = to_rod_def(*spec, disc);
     def.base = BoundaryKind::kFree;  // the sheath drive holds the proximal part
     def.tip = BoundaryKind::kFree;
-    // Quasi-static mass scaling so the explicit step is stable at dt (physics.md 5.3).
-    const double dt_phys = estimate_stable_dt(build_rod(def), RodSettings{});
-    def.density *= std::max(1.0, std::pow(o.dt / dt_phys, 2));
     ContactMaterial mat{spec->friction.vessel_static, spec->friction.vessel_dynamic};
     const double depth = spec == &wire ? o.wire_depth : o.catheter_depth;
     sc.instruments.push_back(make_instrument(def, Sheath{}, mat, depth));
+    // Quasi-static, as in the simulator: each node and frame only as heavy as the explicit step
+    // needs (physics.md 5.4). Scaling the whole rod's density for its finest segment instead
+    // made the shaft hundreds of times too heavy, and the shaft snaked and the tip folded.
+    scale_for_time_step(sc.instruments.back().model, o.dt, kQuasiStaticKpRatio);
   }
   Coupling c;
   c.inner = 0;
