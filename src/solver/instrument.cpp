@@ -308,10 +308,15 @@ void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
   cp.clearance = std::max(0.0, mo.inner_radius[mo.m - 1] - in.model.outer_radius[0]);
   const double dt = set.rod.dt;
   for_each_sheathed(in, out, [&](int i, int k) {
-    in.sheathed[i] = 1;
     int best = k;
     double t = 0.0;
     const Vec3 off = offset_from_outer(out.state, mo.m, k, in.state.x[i], best, t);
+    // Closest to the catheter's distal end: the node lies beyond the tip, outside (on the inside
+    // of the curves the wire's path is shorter than the catheter's centreline, by up to the
+    // clearance times the angle turned). The wall holds it; a constraint toward the tip would pin
+    // it there and yank a shaped wire tip being pulled back in (project_coupling lets it go too).
+    if (best == mo.m - 1 && t >= 1.0) return;
+    in.sheathed[i] = 1;
     const double r = off.norm();
     if (r < 1e-12) return;
     const Vec3 rel_v = in.state.v[i] - ((1 - t) * out.state.v[best] + t * out.state.v[best + 1]);

@@ -3,6 +3,7 @@
 // the default patient, and the autopilot on the default scenario.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -177,10 +178,19 @@ TEST(Autopilot, DefaultScenarioReachesTheAscendingAorta) {
   EXPECT_LT(m.landmarks[0].time, budget);
   EXPECT_FALSE(pilot.failed()) << pilot.status();
   EXPECT_EQ(m.rollbacks, 0);
-  // The catheter followed the wire over the arch (its tip 40 mm behind).
+  // The catheter followed the wire over the arch (its tip 40 mm behind): its tip is in the
+  // aorta, or at the mouth of a branch of the arch, where the Judkins tip, riding the arch's outer
+  // curve, may catch (within the parent's radius of the branch's first centreline point, which
+  // lies on the arch's centreline).
   const TreeHit cath = sim.tip_location(sc.find_instrument("catheter"));
-  const std::string seg = sim.tree().segments[cath.loc.segment].name;
-  EXPECT_TRUE(seg == "aortic_arch" || seg == "ascending_aorta" || seg == "thoracic_aorta") << seg;
+  const VesselSegment& seg = sim.tree().segments[cath.loc.segment];
+  const bool in_aorta =
+      seg.name == "aortic_arch" || seg.name == "ascending_aorta" || seg.name == "thoracic_aorta";
+  const bool at_arch_branch_mouth =
+      seg.parent >= 0 && sim.tree().segments[seg.parent].name == "aortic_arch" &&
+      cath.loc.distance <= std::ranges::max(sim.tree().segments[seg.parent].radii);
+  EXPECT_TRUE(in_aorta || at_arch_branch_mouth)
+      << seg.name << " at " << cath.loc.distance * 1e3 << " mm";
 }
 
 // The whole default scenario, physics only: the J wire to the ascending aorta, the JL4 into the

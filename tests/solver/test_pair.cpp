@@ -214,27 +214,61 @@ TEST(Pair, JudkinsTipStraightensOverAStiffWireAndRecovers) {
 // wall, no gravity): nothing loads either. A stretch of the wire is then moved 0.3 mm beyond the
 // clearance; the next step puts it back, and the hands feel at most a quarter of the lumen
 // friction the impulses carry along the axis (all of it before the fix-up was taken out).
-TEST(Pair, PuttingAWireNodeBackInTheLumenIsNotFelt) {
-  RodDef cd;
-  cd.length = 0.1;
-  cd.segments = 40;
-  cd.outer_radius = 1.0e-3;
-  cd.inner_radius = 0.6e-3;
-  cd.youngs_modulus = 1e9;
-  cd.density = 1e6;  // mass-scaled for the 1 ms step
-  cd.base = cd.tip = BoundaryKind::kFree;
-  RodDef wd = cd;
-  wd.outer_radius = 0.2e-3;
-  wd.inner_radius = 0.0;
-  wd.segments = 60;
+// A straight wire (0.2 mm radius) in a straight catheter (0.6 mm lumen radius) on the sheath
+// axis, no wall, no gravity, inserted `wire_depth` and `cath_depth`.
+struct StraightPair {
   std::vector<Instrument> insts;
-  insts.push_back(make_instrument(wd, Sheath{}, ContactMaterial{}, 0.05));
-  insts.push_back(make_instrument(cd, Sheath{}, ContactMaterial{}, 0.06));
-  std::vector<Coupling> cps(1);
-  cps[0].inner = 0;
-  cps[0].outer = 1;
-  cps[0].mu = 0.1;
-  cps[0].contacts.reserve(insts[0].model.n);
+  std::vector<Coupling> cps{1};
+  RodDef cd, wd;
+  StraightPair(double wire_depth, double cath_depth) {
+    cd.length = 0.1;
+    cd.segments = 40;
+    cd.outer_radius = 1.0e-3;
+    cd.inner_radius = 0.6e-3;
+    cd.youngs_modulus = 1e9;
+    cd.density = 1e6;  // mass-scaled for the 1 ms step
+    cd.base = cd.tip = BoundaryKind::kFree;
+    wd = cd;
+    wd.outer_radius = 0.2e-3;
+    wd.inner_radius = 0.0;
+    wd.segments = 60;
+    insts.push_back(make_instrument(wd, Sheath{}, ContactMaterial{}, wire_depth));
+    insts.push_back(make_instrument(cd, Sheath{}, ContactMaterial{}, cath_depth));
+    cps[0].inner = 0;
+    cps[0].outer = 1;
+    cps[0].mu = 0.1;
+    cps[0].contacts.reserve(insts[0].model.n);
+  }
+};
+
+// A wire node inside the catheter's inserted length by arc length can lie beyond its tip (on the
+// inside of the curves the wire's path is shorter than the catheter's centreline). It is outside:
+// not coupled (a constraint toward the tip would pin it there, and yank a shaped wire tip being
+// pulled back in) and left to the wall.
+TEST(Pair, AWireNodeBeyondTheCatheterTipIsOutside) {
+  StraightPair p(0.0595, 0.06);
+  Instrument& w = p.insts[0];
+  const Instrument& c = p.insts[1];
+  const int tip = w.model.n - 1;
+  const Vec3 axis = c.state.x[c.model.n - 1] - c.state.x[c.model.n - 2];
+  // Inside by arc length (0.5 mm short of the catheter's tip), placed 1 mm beyond the tip plane
+  // and 1 mm off the axis; its neighbour stays inside.
+  w.state.x[tip] = c.state.x[c.model.n - 1] + 1e-3 * axis.normalized() + Vec3(1e-3, 0.0, 0.0);
+  SolverSettings s;
+  s.rod.dt = 1e-3;
+  const DriveCommand cmds[2] = {};
+  step_instruments(p.insts, p.cps, nullptr, s, cmds);
+  EXPECT_FALSE(w.sheathed[tip]) << "beyond the tip: the wall's";
+  EXPECT_TRUE(w.sheathed[tip - 1]) << "its neighbour inside";
+  for (const CoaxialContact& cc : p.cps[0].contacts) EXPECT_NE(cc.node, tip);
+}
+
+TEST(Pair, PuttingAWireNodeBackInTheLumenIsNotFelt) {
+  StraightPair p(0.05, 0.06);
+  std::vector<Instrument>& insts = p.insts;
+  std::vector<Coupling>& cps = p.cps;
+  const RodDef& cd = p.cd;
+  const RodDef& wd = p.wd;
   SolverSettings s;
   s.rod.dt = 1e-3;
   s.rod.drag = 20.0;
