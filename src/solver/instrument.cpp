@@ -279,6 +279,16 @@ Vec3 offset_from_outer(const RodState& out, int m, int k, const Vec3& p, int& be
   return p - (a + best_t * (out.x[best + 1] - a));
 }
 
+// True when the closest point of the outer centreline (edge `best`, parameter t) is its distal
+// end: the inner node lies beyond the outer instrument's tip, outside it. On the inside of the
+// curves the wire's path is shorter than the catheter's centreline (by up to the clearance times
+// the angle turned), so a node still inside by arc length can lie there. The coupling leaves it to
+// the wall: a constraint toward the tip would pin it there along the axis, and yank a shaped wire
+// tip being pulled back in.
+bool beyond_tip(const RodModel& outer, int best, double t) {
+  return best == outer.m - 1 && t >= 1.0;
+}
+
 // Calls f(i, k) for every free inner node i inside the outer instrument's inserted length, with
 // k the outer edge at the same inserted arc length.
 template <class F>
@@ -311,11 +321,7 @@ void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
     int best = k;
     double t = 0.0;
     const Vec3 off = offset_from_outer(out.state, mo.m, k, in.state.x[i], best, t);
-    // Closest to the catheter's distal end: the node lies beyond the tip, outside (on the inside
-    // of the curves the wire's path is shorter than the catheter's centreline, by up to the
-    // clearance times the angle turned). The wall holds it; a constraint toward the tip would pin
-    // it there and yank a shaped wire tip being pulled back in (project_coupling lets it go too).
-    if (best == mo.m - 1 && t >= 1.0) return;
+    if (beyond_tip(mo, best, t)) return;  // outside: the wall's
     in.sheathed[i] = 1;
     const double r = off.norm();
     if (r < 1e-12) return;
@@ -338,10 +344,7 @@ void project_coupling(const Coupling& cp, Instrument& in, const Instrument& out)
     int best = k;
     double t = 0.0;
     const Vec3 off = offset_from_outer(out.state, out.model.m, k, in.state.x[i], best, t);
-    // Closest to the catheter's distal end: the node has left through the tip (on the inside of
-    // a curve the wire's path is shorter than the catheter's centreline), and pulling it back
-    // onto the tip would pin it there along the axis.
-    if (best == out.model.m - 1 && t >= 1.0) return;
+    if (beyond_tip(out.model, best, t)) return;  // left through the tip
     const double r = off.norm();
     if (r > cp.clearance) in.state.x[i] -= ((r - cp.clearance) / r) * off;
   });

@@ -1,5 +1,4 @@
 // The wire-in-catheter scene (paper Fig. 10): catalogue instruments through one sheath.
-#include <cmath>
 #include <numbers>
 
 #include "vcsim/experiments.h"

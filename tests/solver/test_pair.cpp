@@ -208,12 +208,6 @@ TEST(Pair, JudkinsTipStraightensOverAStiffWireAndRecovers) {
   EXPECT_NEAR(tip_offset(c), rest_offset, 0.03 * rest_offset) << "and its tip offset";
 }
 
-// Force feedback (issue 4): the part of a concentric impulse that puts a wire node back inside
-// the lumen is a position fix-up, not a load, and the hands do not feel it, nor the lumen
-// friction it allows. A straight wire slides through a straight catheter on the sheath axis (no
-// wall, no gravity): nothing loads either. A stretch of the wire is then moved 0.3 mm beyond the
-// clearance; the next step puts it back, and the hands feel at most a quarter of the lumen
-// friction the impulses carry along the axis (all of it before the fix-up was taken out).
 // A straight wire (0.2 mm radius) in a straight catheter (0.6 mm lumen radius) on the sheath
 // axis, no wall, no gravity, inserted `wire_depth` and `cath_depth`.
 struct StraightPair {
@@ -263,6 +257,12 @@ TEST(Pair, AWireNodeBeyondTheCatheterTipIsOutside) {
   for (const CoaxialContact& cc : p.cps[0].contacts) EXPECT_NE(cc.node, tip);
 }
 
+// Force feedback (issue 4): the part of a concentric impulse that puts a wire node back inside
+// the lumen is a position fix-up, not a load, and the hands do not feel it, nor the lumen
+// friction it allows. A straight wire slides through a straight catheter on the sheath axis (no
+// wall, no gravity): nothing loads either. A stretch of the wire is then moved 0.3 mm beyond the
+// clearance; the next step puts it back, and the hands feel at most a quarter of the lumen
+// friction the impulses carry along the axis (all of it before the fix-up was taken out).
 TEST(Pair, PuttingAWireNodeBackInTheLumenIsNotFelt) {
   StraightPair p(0.05, 0.06);
   std::vector<Instrument>& insts = p.insts;
