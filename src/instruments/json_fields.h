@@ -100,6 +100,9 @@ class JsonFields {
     return v ? as_number(*v, field(key)) : fallback;
   }
   double positive(const char* key) { return require_positive(number(key), source_, field(key)); }
+  double positive_or(const char* key, double fallback) {
+    return require_positive(number_or(key, fallback), source_, field(key));
+  }
   double nonnegative(const char* key) {
     return require_nonnegative(number(key), source_, field(key));
   }
@@ -118,6 +121,30 @@ class JsonFields {
   std::string string_or(const char* key, const std::string& fallback) {
     const Json* v = get(key);
     return v ? as_string(*v, field(key)) : fallback;
+  }
+  // A string that must not be empty (names, identifiers).
+  std::string text(const char* key) {
+    std::string s = string(key);
+    if (s.empty()) fail(key, "expected a non-empty string");
+    return s;
+  }
+  std::string text_or(const char* key, const std::string& fallback) {
+    return has(key) ? text(key) : fallback;
+  }
+  // An integer in [lo, hi] (inclusive).
+  int integer_or(const char* key, int lo, int hi, int fallback) {
+    const Json* v = get(key);
+    if (!v) return fallback;
+    if (!v->is_number_integer() || v->get<long long>() < lo || v->get<long long>() > hi)
+      fail(key, cat("expected an integer in [", std::to_string(lo), ", ", std::to_string(hi),
+                    "], got ", describe_json(*v)));
+    return static_cast<int>(v->get<long long>());
+  }
+  bool boolean_or(const char* key, bool fallback) {
+    const Json* v = get(key);
+    if (!v) return fallback;
+    if (!v->is_boolean()) fail(key, cat("expected true or false, got ", describe_json(*v)));
+    return v->get<bool>();
   }
   const Json& array(const char* key) {
     const Json& v = require(key);

@@ -18,6 +18,16 @@ BentTubeSpec bench_like_spec() {
   return spec;
 }
 
+// The bench's tube, repaired, with a tree built over it (the set-up most tests share).
+struct BenchTube {
+  TriangleMesh m = make_bent_tube(bench_like_spec());
+  AabbTree tree;
+  BenchTube() {
+    check_and_repair(m);
+    tree.build(m);
+  }
+};
+
 // Each triangle appears in exactly one leaf, every box holds its children and triangles (with
 // the fat margin), and children come after their parents.
 void expect_tree_invariants(const AabbTree& tree, const TriangleMesh& m) {
@@ -51,10 +61,9 @@ void expect_tree_invariants(const AabbTree& tree, const TriangleMesh& m) {
 }
 
 TEST(AabbTree, BuildInvariants) {
-  TriangleMesh m = make_bent_tube(bench_like_spec());
-  check_and_repair(m);
-  AabbTree tree;
-  tree.build(m);
+  BenchTube t;
+  const TriangleMesh& m = t.m;
+  AabbTree& tree = t.tree;
   expect_tree_invariants(tree, m);
   EXPECT_EQ(tree.nodes().size() % 2, 1u);  // root plus pairs
 }
@@ -133,10 +142,9 @@ TEST(AabbTree, SphereQueriesMatchBruteForce) {
 }
 
 TEST(AabbTree, BatchQueryEqualsSingleQueries) {
-  TriangleMesh m = make_bent_tube(bench_like_spec());
-  check_and_repair(m);
-  AabbTree tree;
-  tree.build(m);
+  BenchTube t;
+  const TriangleMesh& m = t.m;
+  AabbTree& tree = t.tree;
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> u(-4e-3, 4e-3);
   std::vector<Vec3> centres;
@@ -163,10 +171,9 @@ TEST(AabbTree, BatchQueryEqualsSingleQueries) {
 // every query through a leaf cache gives exactly what a full traversal gives, whether the cache
 // was reused or refilled; both happen.
 TEST(AabbTree, LeafCacheQueriesEqualFullQueries) {
-  TriangleMesh m = make_bent_tube(bench_like_spec());
-  check_and_repair(m);
-  AabbTree tree;
-  tree.build(m);
+  BenchTube t;
+  const TriangleMesh& m = t.m;
+  AabbTree& tree = t.tree;
   std::mt19937 rng(11);
   std::normal_distribution<double> step(0.0, 0.04e-3);
   std::uniform_real_distribution<double> u(-1.0, 1.0);

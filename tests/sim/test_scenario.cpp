@@ -82,6 +82,12 @@ TEST(Scenario, BadInputNamesTheField) {
                     "{\"action\": \"inject\", \"flow_ml_s\": 99}, "
                     "{\"action\": \"navigate\""),
                "autopilot[0].flow_ml_s");
+  // A key that the phase's action does not use is refused, not ignored.
+  expect_error(edit("{\"action\": \"navigate\"",
+                    "{\"action\": \"wait\", \"depth_mm\": 5}, {\"action\": \"navigate\""),
+               "autopilot[0].depth_mm");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"motion\": {\"beating\": 1}"),
+               "motion.beating");
   // Duplicated names would make commands ambiguous.
   expect_error(edit("\"catalogue\": \"wire-035-j3-hydrophilic\"}",
                     "\"catalogue\": \"wire-035-j3-hydrophilic\"}, {\"name\": \"wire\", "
