@@ -95,12 +95,15 @@ TEST(Pair, ParallelInstrumentsGiveTheSameSteps) {
     StaticWall wall = sc.wall();
     using M = DriveCommand::Mode;
     const DriveCommand cmds[] = {{M::kVelocity, 0.02, 2.0}, {M::kVelocity, 0.01, -1.0}};
-    int coupled = 0;
+    int coupled = 0, queries = 0;
+    StepProfile prof;
     for (int k = 0; k < 600; ++k) {
-      step_instruments(sc.instruments, sc.couplings, &wall, sc.settings, cmds);
+      step_instruments(sc.instruments, sc.couplings, &wall, sc.settings, cmds, &prof);
       coupled = std::max(coupled, static_cast<int>(sc.couplings[0].contacts.size()));
+      queries += prof.num_queries;
     }
     EXPECT_GT(coupled, 10) << "the coupling must have been active";
+    EXPECT_GT(queries, 100) << "the wall must have been queried";
     return std::pair(sc.instruments[0].state.hash(), sc.instruments[1].state.hash());
   };
   EXPECT_EQ(run(false), run(true));
