@@ -156,9 +156,6 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
       sc.autopilot.push_back(ph);
     }
   }
-  if (input == "autopilot" && sc.autopilot.empty())
-    f.fail("autopilot", "expected a plan of at least one phase (input: autopilot)");
-
   if (f.has("landmarks")) {
     const Json& lm = f.array("landmarks");
     for (std::size_t i = 0; i < lm.size(); ++i) {
@@ -199,7 +196,10 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
     fl.follow_tip = v.boolean_or("follow_tip", false);
     v.finish();
   }
+  // Unknown keys first: a misspelt "autopilot" is named as such, not reported as a missing plan.
   f.finish();
+  if (input == "autopilot" && sc.autopilot.empty())
+    f.fail("autopilot", "expected a plan of at least one phase (input: autopilot)");
   return sc;
 }
 

@@ -88,6 +88,8 @@ TEST(Scenario, BadInputNamesTheField) {
                "autopilot[0].depth_mm");
   expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"motion\": {\"beating\": 1}"),
                "motion.beating");
+  // A misspelt key is named, not reported as the missing key it was meant to be.
+  expect_error(edit("\"autopilot\":", "\"autopilott\":"), "autopilott");
   // Duplicated names would make commands ambiguous.
   expect_error(edit("\"catalogue\": \"wire-035-j3-hydrophilic\"}",
                     "\"catalogue\": \"wire-035-j3-hydrophilic\"}, {\"name\": \"wire\", "
