@@ -50,6 +50,7 @@ struct RunOptions {
   std::string address = "127.0.0.1";
   bool address_given = false;
   bool realtime = false;
+  std::string force_log;  // CSV of the hand forces, every step ("" = none)
 };
 
 // Set by SIGINT/SIGTERM, read by the run loop (lock-free, so the handler only stores a flag).
@@ -334,6 +335,7 @@ class RunDisplay : public RunObserver {
     return true;
   }
   void after_step(const Simulator& sim) override {
+    if (force_log_) log_forces(sim);
     if (film_ && sim.time() >= next_frame_ - 1e-9) {
       if (sc_.fluoro.follow_tip) {
         // The operator pans the table when the leading tip nears the edge of the field (in
@@ -356,8 +358,32 @@ class RunDisplay : public RunObserver {
     }
   }
   void done() { bar_.done(); }
+  // Every step's hand forces to `file` (CSV; a header names the columns).
+  void open_force_log(const fs::path& file, const Scenario& sc) {
+    force_log_.open(file);
+    if (!force_log_)
+      throw InputError("run", "--force-log", "expected a writable file, got '" + file.string() + "'");
+    force_log_ << "time_s";
+    for (const ScenarioInstrument& si : sc.instruments)
+      force_log_ << ',' << si.name << "_depth_mm," << si.name << "_force_n," << si.name
+                 << "_torque_nmm";
+    force_log_ << '\n';
+  }
 
  private:
+  void log_forces(const Simulator& sim) {
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "%.4f", sim.time());
+    force_log_ << buf;
+    for (int i = 0; i < sim.num_instruments(); ++i) {
+      const DriveState& dr = sim.instrument(i).drive;
+      std::snprintf(buf, sizeof buf, ",%.3f,%.6g,%.6g", dr.depth * 1e3, dr.axial_force,
+                    dr.torque * 1e3);
+      force_log_ << buf;
+    }
+    force_log_ << '\n';
+  }
+
   const RunOptions& o_;
   const Scenario& sc_;
   Autopilot* pilot_;
@@ -370,6 +396,7 @@ class RunDisplay : public RunObserver {
   ProgressBar bar_;
   std::string last_status_;
   double loop0_;
+  std::ofstream force_log_;
 };
 
 int cmd_run(const RunOptions& o) {
@@ -430,6 +457,7 @@ int cmd_run(const RunOptions& o) {
               << " (instruments: " << names << ")" << std::endl;  // flushed: a client waits on it
   }
   RunDisplay observer(o, sc, pilot.get(), film.get(), pose, centre, frame_dt, end_time, input_type);
+  if (!o.force_log.empty()) observer.open_force_log(o.force_log, sc);
   RunLoopSettings loop_settings;
   loop_settings.end_time = end_time;
   loop_settings.realtime = device || o.realtime;
@@ -485,6 +513,8 @@ int cmd_run(const RunOptions& o) {
                      {"tip_path_mm", m.tip_path[i] * 1e3},
                      {"peak_wall_force_n", m.peak_wall_force[i]},
                      {"peak_axial_force_n", m.peak_axial_force[i]},
+                     {"peak_axial_jump_n", m.peak_axial_jump[i]},
+                     {"peak_torque_nmm", m.peak_torque[i] * 1e3},
                      {"tip_segment", in.drive.depth > 0 ? sim.tree().segments[h.loc.segment].name
                                                         : std::string("outside")},
                      {"tip_distance_mm", h.loc.distance * 1e3},
@@ -579,6 +609,8 @@ void install(CLI::App& app, int& status) {
   cmd->add_option("--port", o->port, "TCP port of --device igtl (default 18944; 0: any free)");
   cmd->add_option("--address", o->address,
                   "IPv4 address --device igtl listens on (default 127.0.0.1)");
+  cmd->add_option("--force-log", o->force_log,
+                  "Write every step's hand force (N) and torque (N mm) per instrument to this CSV");
   cmd->add_flag("--realtime", o->realtime, "Pace the run to the wall clock (implied by --device)");
   cmd->callback([o, &status, cmd] {
     o->port_given = cmd->count("--port") > 0;

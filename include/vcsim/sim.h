@@ -118,6 +118,13 @@ struct FluoroSettings {
   bool follow_tip = false;  // pan the table to keep the last phase's instrument tip centred
 };
 
+// What the hands feel (physics.md 6.1): the hand-force definition and an optional low-pass for a
+// haptic device.
+struct FeedbackSettings {
+  SolverSettings::HandForce hand_force = SolverSettings::HandForce::kQuasiStatic;
+  double cutoff_hz = 0.0;  // first-order low-pass of force and torque; 0: the raw signal
+};
+
 struct Scenario {
   std::string name;
   std::string description;
@@ -135,6 +142,7 @@ struct Scenario {
   std::vector<Landmark> landmarks;
   ContrastSettings contrast;
   FluoroSettings fluoro;
+  FeedbackSettings feedback;
   std::filesystem::path base_dir;  // folder relative paths start from
 
   int find_instrument(std::string_view name) const;  // index or -1
@@ -179,6 +187,10 @@ struct SimMetrics {
   std::vector<double> tip_path;          // (instrument) m travelled by the distal tip
   std::vector<double> peak_wall_force;   // (instrument) N, largest wall contact force
   std::vector<double> peak_axial_force;  // (instrument) N at the hand, largest magnitude
+  // (instrument) N, largest change of the hand force from one step to the next while inserted:
+  // a physical load builds up over milliseconds, a numerical spike within a step.
+  std::vector<double> peak_axial_jump;
+  std::vector<double> peak_torque;  // (instrument) N m at the hand, largest magnitude
   std::vector<LandmarkRecord> landmarks;
   double contrast_volume = 0.0;  // ml injected
   int rollbacks = 0;             // steps that produced a non-finite value and were undone
@@ -246,6 +258,7 @@ class Simulator {
   std::vector<Vec3> old_tips_;
   std::vector<std::pair<int, int>> landmark_ids_;  // (landmark) instrument and segment index
   double next_landmark_check_ = 0.0;
+  std::vector<double> last_axial_force_;  // (instrument) N of the previous step, NaN if outside
   double time_ = 0.0;
   SimMetrics metrics_;
 };

@@ -196,6 +196,17 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
     fl.follow_tip = v.boolean_or("follow_tip", false);
     v.finish();
   }
+  if (f.has("feedback")) {
+    JsonFields fb = f.object("feedback");
+    const std::string kind = fb.text_or("hand_force", "quasi-static");
+    if (kind == "impulses") {
+      sc.feedback.hand_force = SolverSettings::HandForce::kImpulses;
+    } else if (kind != "quasi-static") {
+      fb.fail("hand_force", "expected quasi-static or impulses, got '" + kind + "'");
+    }
+    sc.feedback.cutoff_hz = fb.nonnegative_or("cutoff_hz", sc.feedback.cutoff_hz);
+    fb.finish();
+  }
   // Unknown keys first: a misspelt "autopilot" is named as such, not reported as a missing plan.
   f.finish();
   if (input == "autopilot" && sc.autopilot.empty())

@@ -139,6 +139,8 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
   s.rod.dt = sc_.dt;
   set_quasi_static_damping(s.rod);
   s.collisions = true;
+  s.hand_force = sc_.feedback.hand_force;
+  s.feedback_cutoff_hz = sc_.feedback.cutoff_hz;
   for (std::size_t i = 0; i < specs_.size(); ++i) {
     Discretisation disc;
     disc.max_nodes = sc_.instruments[i].max_nodes;
@@ -173,6 +175,9 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
   metrics_.tip_path.assign(n, 0.0);
   metrics_.peak_wall_force.assign(n, 0.0);
   metrics_.peak_axial_force.assign(n, 0.0);
+  metrics_.peak_axial_jump.assign(n, 0.0);
+  metrics_.peak_torque.assign(n, 0.0);
+  last_axial_force_.assign(n, std::nan(""));
   for (const Landmark& l : sc_.landmarks) metrics_.landmarks.push_back({l.name, l.instrument});
 }
 
@@ -341,6 +346,16 @@ void Simulator::update_metrics(const std::vector<Vec3>& old_tips) {
     metrics_.peak_wall_force[i] = std::max(metrics_.peak_wall_force[i], f);
     metrics_.peak_axial_force[i] =
         std::max(metrics_.peak_axial_force[i], std::abs(in.drive.axial_force));
+    metrics_.peak_torque[i] = std::max(metrics_.peak_torque[i], std::abs(in.drive.torque));
+    // NaN while outside: no jump is counted across an insertion or a withdrawal.
+    double& last = last_axial_force_[i];
+    if (in.drive.depth > 0.0) {
+      const double jump = std::abs(in.drive.axial_force - last);
+      if (jump > metrics_.peak_axial_jump[i]) metrics_.peak_axial_jump[i] = jump;
+      last = in.drive.axial_force;
+    } else {
+      last = std::nan("");
+    }
   }
   if (time_ < next_landmark_check_) return;
   next_landmark_check_ = time_ + kLandmarkInterval;

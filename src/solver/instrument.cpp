@@ -3,6 +3,8 @@
 // (physics.md section 6).
 #include "vcsim/solver.h"
 
+#include "feedback.h"
+
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -10,7 +12,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <numbers>
 
 namespace vcsim {
 
@@ -79,65 +80,6 @@ void drive_end(Instrument& inst) {
                      inst.sheath.frame)
                         .normalized();
   for (int j = 0; j + 1 < inst.drive.first_free && j < inst.model.m; ++j) inst.state.q[j] = held;
-}
-
-// Force and torque at the hand (physics.md 6.1): the loads the world puts on the inserted part,
-// carried back to the hand as they would be in equilibrium: wall contact impulses (less the
-// penetration fix-up taken back after the step), coupling impulses (on held nodes too), applied
-// loads and gravity on the free nodes, and their moments about the sheath axis. This equals what
-// the free part exerts across the boundary on the held part less the free part's inertia and
-// mass-proportional drag, both artefacts of mass scaling, and never sees the held part's own
-// (scaled) mass. An optional first-order low-pass smooths it for a haptic device.
-// `coupled`: some coupling may have put impulses on this instrument's nodes this step.
-void drive_feedback(Instrument& inst, const SolverSettings& set, bool coupled) {
-  const RodModel& md = inst.model;
-  const RodState& st = inst.state;
-  const double dt = set.rod.dt;
-  const Vec3 a = inst.sheath.access_point;
-  Vec3 f = Vec3::Zero(), m = Vec3::Zero();
-  auto add = [&](int i, const Vec3& fi) {
-    f += fi;
-    m += (st.x[i] - a).cross(fi);
-  };
-  for (const NodeContact& c : inst.contacts) {
-    add(c.node, ((c.lambda_n - c.lambda_bias) * c.normal + c.lambda_t) / dt);
-  }
-  if (coupled) {
-    for (int i = 0; i < md.n; ++i) {
-      if (inst.coupling_impulse[i] != Vec3::Zero()) add(i, inst.coupling_impulse[i] / dt);
-    }
-  }
-  // Applied loads one by one; gravity through the first mass moment (sum m_i (x_i - a)) x g.
-  // The loops over every node are skipped where they would add nothing: in the compression
-  // experiment they cost as many instructions as the rod's whole position update.
-  for (int i = inst.drive.first_free; i < md.n; ++i) {
-    if (st.f_ext[i] != Vec3::Zero()) add(i, st.f_ext[i]);
-  }
-  if (set.rod.gravity != Vec3::Zero()) {
-    double mass = 0.0;
-    Vec3 moment = Vec3::Zero();
-    for (int i = inst.drive.first_free; i < md.n; ++i) {
-      mass += md.node_mass[i];
-      moment += md.node_mass[i] * (st.x[i] - a);
-    }
-    f += mass * set.rod.gravity;
-    m += moment.cross(set.rod.gravity);
-  }
-  for (int j = std::max(0, inst.drive.first_free - 1); j < md.m; ++j) m += st.tau_ext[j];
-  // The hand holds the rod against these loads: > 0 when they push the rod back out.
-  const Vec3 axis = inst.sheath.frame * Vec3::UnitZ();
-  DriveState& dr = inst.drive;
-  dr.axial_force_raw = -f.dot(axis);
-  dr.torque_raw = -m.dot(axis);
-  if (set.feedback_cutoff_hz > 0.0 && st.steps > 0) {
-    // y += (1 - exp(-2 pi fc dt)) (x - y): the exact step response of a first-order filter.
-    const double g = 1.0 - std::exp(-2.0 * std::numbers::pi * set.feedback_cutoff_hz * dt);
-    dr.axial_force += g * (dr.axial_force_raw - dr.axial_force);
-    dr.torque += g * (dr.torque_raw - dr.torque);
-  } else {
-    dr.axial_force = dr.axial_force_raw;
-    dr.torque = dr.torque_raw;
-  }
 }
 
 // --- contacts ------------------------------------------------------------------------------------
@@ -434,6 +376,9 @@ void size_scratch(Instrument& inst) {
   inst.query_caches.assign(n, nullptr);
   inst.sheathed.assign(n, 0);
   inst.coupling_impulse.assign(n, Vec3::Zero());
+  inst.felt_load.assign(n, Vec3::Zero());
+  inst.wall_contact_of.assign(n, -1);
+  inst.coupling_of.assign(n, -1);
   inst.ws.resize(inst.model);
 }
 
@@ -636,12 +581,12 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   }
   for (Instrument& in : insts) {
     if (in.parked) continue;
-    if (in.driven) {
-      drive_end(in);
-      drive_feedback(in, set, !couplings.empty());
-    }
-    rod_end_step(in.model, rs, in.state, in.ws);
+    if (in.driven) drive_end(in);
   }
+  // 7. what the hands feel, inner instruments first; then the rods' own end of step
+  internal::hand_feedback(insts, couplings, set);
+  for (Instrument& in : insts)
+    if (!in.parked) rod_end_step(in.model, rs, in.state, in.ws);
   if (prof) {
     const double t6 = tick();
     p.collision = t4 - t3;

@@ -1,0 +1,219 @@
+// Force and torque at the hand (physics.md 6.1).
+#include "feedback.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <numbers>
+
+namespace vcsim::internal {
+
+namespace {
+
+// Below this sliding speed (m/s) Coulomb friction is regularised: mu N v_t / kSlipSpeed. It picks
+// the sliding direction of a quasi-static rod; the hand moves 5 to 300 mm/s when it moves at all.
+constexpr double kSlipSpeed = 1e-3;
+// Weight of the step's own (mass-scaled) reaction where the rod's shape does not decide a
+// reaction: a wall across the rod's axis (a dead end), where an inextensible rod can carry any
+// compression. Against |d_perp|^2 ~ 1 for a wall beside the rod it changes that reaction by 1 %.
+constexpr double kIndeterminateWeight = 1e-2;
+// An edge stretched or compressed beyond this is a violated distance constraint (the global solve
+// keeps edges within 0.5 %; the default run's first free edge reaches 15 % while a wire is pulled
+// out fast, a straight rod crammed into a dead end 57 %): its direction cannot decide a reaction.
+constexpr double kMaxStrain = 0.05;
+
+// The parallel-constraint penalty force of edge j on its first node (kernels.h parallel_penalty,
+// physics.md eq. 6): K_p (u - (u . d3) d3), u = e / l. Its second node receives the opposite.
+Vec3 edge_shear(const RodModel& md, const RodState& st, int j) {
+  const Vec3 u = (st.x[j + 1] - st.x[j]) / md.rest_length[j];
+  const Vec3 d3 = st.q[j] * Vec3::UnitZ();
+  return md.kp[j] * (u - u.dot(d3) * d3);
+}
+
+// Loads as the step applied them: wall contact impulses less the penetration fix-up, coupling
+// impulses less their violation fix-up, applied loads and gravity (SolverSettings::HandForce::
+// kImpulses). Returns the force and its moment about the access point.
+void impulse_loads(const Instrument& in, const SolverSettings& set, Vec3& f, Vec3& m) {
+  const RodModel& md = in.model;
+  const RodState& st = in.state;
+  const double dt = set.rod.dt;
+  const Vec3 a = in.sheath.access_point;
+  auto add = [&](int i, const Vec3& fi) {
+    f += fi;
+    m += (st.x[i] - a).cross(fi);
+  };
+  for (const NodeContact& c : in.contacts)
+    add(c.node, ((c.lambda_n - c.lambda_bias) * c.normal + c.lambda_t) / dt);
+  for (int i = 0; i < md.n; ++i)
+    if (in.coupling_impulse[i] != Vec3::Zero()) add(i, in.coupling_impulse[i] / dt);
+  for (int i = in.drive.first_free; i < md.n; ++i) {
+    const Vec3 load = st.f_ext[i] + md.node_mass[i] * set.rod.gravity;
+    if (load != Vec3::Zero()) add(i, load);
+  }
+}
+
+// The reactions a rod of negligible mass would need in this step's shape, walked from the tip to
+// the hand (physics.md 6.1, "the quasi-static hand force"). Edge j's internal force on its first
+// node is Q_j = T_j t_j + P_j: a tension along the edge and the parallel penalty's shear P_j, which
+// the shape decides. Node i's balance without inertia gives Q_{i-1} = Q_i + loads_i + R_i. A wall
+// or lumen reaction R_i = s d (d: the normal less mu times the regularised sliding direction) takes
+// the s >= 0 that leaves Q_{i-1} - P_{i-1} closest to edge i-1's direction (a tension); what no
+// reaction can balance stays in Q, so the result is the sum of the loads and these reactions, the
+// boundary force of the part in equilibrium. Gaps the step did not close get no reaction.
+// `cp`/`outer`: the coupling holding this rod in another's lumen (or null); the outer rod receives
+// the reactions as loads (Instrument::felt_load). Returns Q at the boundary edge, the force the
+// inserted part exerts on the held part.
+Vec3 quasi_static_force(Instrument& in, const Coupling* cp, Instrument* outer,
+                        const SolverSettings& set) {
+  const RodModel& md = in.model;
+  const RodState& st = in.state;
+  const double dt = set.rod.dt;
+  std::fill(in.wall_contact_of.begin(), in.wall_contact_of.end(), -1);
+  for (int k = 0; k < static_cast<int>(in.contacts.size()); ++k)
+    in.wall_contact_of[in.contacts[k].node] = k;
+  std::fill(in.coupling_of.begin(), in.coupling_of.end(), -1);
+  if (cp)
+    for (int k = 0; k < static_cast<int>(cp->contacts.size()); ++k)
+      in.coupling_of[cp->contacts[k].node] = k;
+  // The reaction of node i's wall contact or lumen contact as a direction d and the step's own
+  // normal reaction (N); false if the node has none.
+  auto reaction_of = [&](int i, Vec3& d, double& heavy, const CoaxialContact*& cc) {
+    Vec3 n, v_rel;
+    double mu = 0.0;
+    cc = nullptr;
+    if (const int w = in.wall_contact_of[i]; w >= 0) {
+      const NodeContact& c = in.contacts[w];
+      if (c.lambda_n <= 0.0 && c.depth <= 0.0) return false;  // a gap the step did not close
+      n = c.normal;
+      v_rel = st.v[i] - c.wall_velocity;
+      mu = in.contact.mu_dynamic;
+      heavy = (c.lambda_n - c.lambda_bias) / dt;
+    } else if (const int k = in.coupling_of[i]; k >= 0) {
+      cc = &cp->contacts[k];
+      if (cc->lambda_n <= 0.0) return false;
+      n = -cc->normal;  // the catheter pushes the wire back toward its centreline
+      v_rel = st.v[i] - ((1 - cc->t) * outer->state.v[cc->segment] +
+                         cc->t * outer->state.v[cc->segment + 1]);
+      mu = cp->mu;
+      heavy = cc->lambda_n / dt;
+    } else {
+      return false;
+    }
+    const Vec3 vt = v_rel - v_rel.dot(n) * n;
+    d = n - (mu / std::max(vt.norm(), kSlipSpeed)) * vt;
+    return true;
+  };
+  Vec3 q = Vec3::Zero();  // Q_i: the internal force of the edge distal to node i (none at the tip)
+  const int first = std::max(1, in.drive.first_free);
+  for (int i = md.n - 1; i >= first; --i) {
+    q += st.f_ext[i] + md.node_mass[i] * set.rod.gravity + in.felt_load[i];
+    const Vec3 e = st.x[i] - st.x[i - 1];
+    const double len = e.norm();
+    if (len < 1e-12) continue;
+    const Vec3 t = e / len;
+    const Vec3 shear = edge_shear(md, st, i - 1);
+    Vec3 d;
+    double heavy = 0.0;
+    const CoaxialContact* cc = nullptr;
+    if (!reaction_of(i, d, heavy, cc)) continue;
+    double s = heavy;
+    if (std::abs(len / md.rest_length[i - 1] - 1.0) > kMaxStrain) {
+      // A violated edge: its direction is not a rod's. A lumen reaction there is the coupling
+      // repairing the violation, a position fix-up that is not felt (as before, c_fix); a wall
+      // keeps the step's own reaction (a crammed dead end must still be felt).
+      if (cc) continue;
+    } else {
+      const Vec3 r_perp = (q - shear) - (q - shear).dot(t) * t;
+      const Vec3 d_perp = d - d.dot(t) * t;
+      // Least squares of |r_perp + s d_perp|, leaning on the step's own N where d lies along the
+      // edge (a dead end's cap) and the shape cannot decide.
+      s = std::max(0.0, (kIndeterminateWeight * heavy - r_perp.dot(d_perp)) /
+                            (d_perp.squaredNorm() + kIndeterminateWeight));
+    }
+    const Vec3 reaction = s * d;
+    q += reaction;
+    if (cc) {
+      outer->felt_load[cc->segment] -= (1 - cc->t) * reaction;
+      outer->felt_load[cc->segment + 1] -= cc->t * reaction;
+    }
+  }
+  // Reactions of inner instruments on the held part (a wire near the access point).
+  for (int i = 0; i < first; ++i) q += in.felt_load[i];
+  return q;
+}
+
+// The twisting moment of the rod at the boundary vertex between the last held frame and the first
+// free one (physics.md eq. 5, K3 (Omega_3 - Omega0_3)): what a torque sensor at the hub reads. > 0
+// when the inserted part lags behind a positive roll of the hand.
+double hub_twist_moment(const Instrument& in) {
+  const RodModel& md = in.model;
+  const int k = std::clamp(in.drive.first_free - 1, 1, md.m - 1);
+  const Vec3 w = darboux(in.state.q[k - 1], in.state.q[k], md.vertex_length[k]);
+  return -md.vertex_stiffness[k].z() * (w.z() - md.rest_darboux[k].z());
+}
+
+void publish(Instrument& in, const SolverSettings& set, double force, double torque) {
+  DriveState& dr = in.drive;
+  dr.axial_force_raw = force;
+  dr.torque_raw = torque;
+  if (set.feedback_cutoff_hz > 0.0 && in.state.steps > 0) {
+    // y += (1 - exp(-2 pi fc dt)) (x - y): the exact step response of a first-order filter.
+    const double g = 1.0 - std::exp(-2.0 * std::numbers::pi * set.feedback_cutoff_hz * set.rod.dt);
+    dr.axial_force += g * (dr.axial_force_raw - dr.axial_force);
+    dr.torque += g * (dr.torque_raw - dr.torque);
+  } else {
+    dr.axial_force = dr.axial_force_raw;
+    dr.torque = dr.torque_raw;
+  }
+}
+
+}  // namespace
+
+void hand_feedback(std::span<Instrument> insts, std::span<const Coupling> couplings,
+                   const SolverSettings& set) {
+  if (set.hand_force == SolverSettings::HandForce::kImpulses) {
+    for (Instrument& in : insts) {
+      if (in.parked || !in.driven) continue;
+      Vec3 f = Vec3::Zero(), m = Vec3::Zero();
+      impulse_loads(in, set, f, m);
+      for (int j = std::max(0, in.drive.first_free - 1); j < in.model.m; ++j)
+        m += in.state.tau_ext[j];
+      // The hand holds the rod against these loads: > 0 when they push the rod back out.
+      const Vec3 axis = in.sheath.frame * Vec3::UnitZ();
+      publish(in, set, -f.dot(axis), -m.dot(axis));
+    }
+    return;
+  }
+  // Inner instruments first: an outer one feels their reactions. Nesting is a chain of a few
+  // instruments, so a pass per level is enough.
+  constexpr std::size_t kMax = 64;
+  std::array<bool, kMax> done{};
+  const std::size_t n = std::min(insts.size(), kMax);
+  for (std::size_t k = 0; k < n; ++k) {
+    std::fill(insts[k].felt_load.begin(), insts[k].felt_load.end(), Vec3::Zero());
+    done[k] = insts[k].parked || !insts[k].driven;
+  }
+  for (std::size_t pass = 0; pass < n; ++pass) {
+    bool progress = false;
+    for (std::size_t k = 0; k < n; ++k) {
+      if (done[k]) continue;
+      bool ready = true;
+      const Coupling* as_inner = nullptr;
+      for (const Coupling& c : couplings) {
+        if (static_cast<std::size_t>(c.outer) == k && !done[c.inner]) ready = false;
+        if (static_cast<std::size_t>(c.inner) == k && !insts[c.outer].parked) as_inner = &c;
+      }
+      if (!ready) continue;
+      Instrument& in = insts[k];
+      const Vec3 f =
+          quasi_static_force(in, as_inner, as_inner ? &insts[as_inner->outer] : nullptr, set);
+      // > 0 when the inserted part pushes the rod back out.
+      publish(in, set, -f.dot(in.sheath.frame * Vec3::UnitZ()), hub_twist_moment(in));
+      done[k] = true;
+      progress = true;
+    }
+    if (!progress) break;
+  }
+}
+
+}  // namespace vcsim::internal
