@@ -362,7 +362,8 @@ class RunDisplay : public RunObserver {
   void open_force_log(const fs::path& file, const Scenario& sc) {
     force_log_.open(file);
     if (!force_log_)
-      throw InputError("run", "--force-log", "expected a writable file, got '" + file.string() + "'");
+      throw InputError("run", "--force-log",
+                       "expected a writable file, got '" + file.string() + "'");
     force_log_ << "time_s";
     for (const ScenarioInstrument& si : sc.instruments)
       force_log_ << ',' << si.name << "_depth_mm," << si.name << "_force_n," << si.name

@@ -32,24 +32,26 @@ Vec3 edge_shear(const RodModel& md, const RodState& st, int j) {
 
 // Loads as the step applied them: wall contact impulses less the penetration fix-up, coupling
 // impulses less their violation fix-up, applied loads and gravity (SolverSettings::HandForce::
-// kImpulses). Returns the force and its moment about the access point.
-void impulse_loads(const Instrument& in, const SolverSettings& set, Vec3& f, Vec3& m) {
+// kImpulses), summed: in equilibrium, the force the inserted part exerts across the boundary.
+Vec3 impulse_loads(const Instrument& in, const SolverSettings& set, bool coupled) {
   const RodModel& md = in.model;
   const RodState& st = in.state;
   const double dt = set.rod.dt;
-  const Vec3 a = in.sheath.access_point;
-  auto add = [&](int i, const Vec3& fi) {
-    f += fi;
-    m += (st.x[i] - a).cross(fi);
-  };
+  Vec3 f = Vec3::Zero();
   for (const NodeContact& c : in.contacts)
-    add(c.node, ((c.lambda_n - c.lambda_bias) * c.normal + c.lambda_t) / dt);
-  for (int i = 0; i < md.n; ++i)
-    if (in.coupling_impulse[i] != Vec3::Zero()) add(i, in.coupling_impulse[i] / dt);
-  for (int i = in.drive.first_free; i < md.n; ++i) {
-    const Vec3 load = st.f_ext[i] + md.node_mass[i] * set.rod.gravity;
-    if (load != Vec3::Zero()) add(i, load);
+    f += ((c.lambda_n - c.lambda_bias) * c.normal + c.lambda_t) / dt;
+  if (coupled)
+    for (int i = 0; i < md.n; ++i) f += in.coupling_impulse[i] / dt;
+  // Applied loads one by one; gravity through the free part's mass. The loops skip what adds
+  // nothing: in the compression experiment they cost as much as the rod's position update.
+  for (int i = in.drive.first_free; i < md.n; ++i)
+    if (st.f_ext[i] != Vec3::Zero()) f += st.f_ext[i];
+  if (set.rod.gravity != Vec3::Zero()) {
+    double mass = 0.0;
+    for (int i = in.drive.first_free; i < md.n; ++i) mass += md.node_mass[i];
+    f += mass * set.rod.gravity;
   }
+  return f;
 }
 
 // The reactions a rod of negligible mass would need in this step's shape, walked from the tip to
@@ -92,8 +94,8 @@ Vec3 quasi_static_force(Instrument& in, const Coupling* cp, Instrument* outer,
       cc = &cp->contacts[k];
       if (cc->lambda_n <= 0.0) return false;
       n = -cc->normal;  // the catheter pushes the wire back toward its centreline
-      v_rel = st.v[i] - ((1 - cc->t) * outer->state.v[cc->segment] +
-                         cc->t * outer->state.v[cc->segment + 1]);
+      v_rel = st.v[i] -
+              ((1 - cc->t) * outer->state.v[cc->segment] + cc->t * outer->state.v[cc->segment + 1]);
       mu = cp->mu;
       heavy = cc->lambda_n / dt;
     } else {
@@ -174,13 +176,10 @@ void hand_feedback(std::span<Instrument> insts, std::span<const Coupling> coupli
   if (set.hand_force == SolverSettings::HandForce::kImpulses) {
     for (Instrument& in : insts) {
       if (in.parked || !in.driven) continue;
-      Vec3 f = Vec3::Zero(), m = Vec3::Zero();
-      impulse_loads(in, set, f, m);
-      for (int j = std::max(0, in.drive.first_free - 1); j < in.model.m; ++j)
-        m += in.state.tau_ext[j];
       // The hand holds the rod against these loads: > 0 when they push the rod back out.
-      const Vec3 axis = in.sheath.frame * Vec3::UnitZ();
-      publish(in, set, -f.dot(axis), -m.dot(axis));
+      publish(in, set,
+              -impulse_loads(in, set, !couplings.empty()).dot(in.sheath.frame * Vec3::UnitZ()),
+              hub_twist_moment(in));
     }
     return;
   }

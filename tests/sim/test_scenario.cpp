@@ -78,6 +78,13 @@ TEST(Scenario, BadInputNamesTheField) {
                "landmarks[0].instrument");
   expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"input\": {\"type\": \"joystick\"}"),
                "input.type");
+  expect_error(
+      edit("\"name\": \"t\"", "\"name\": \"t\", \"feedback\": {\"hand_force\": \"magic\"}"),
+      "feedback.hand_force");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"feedback\": {\"cutoff_hz\": -5}"),
+               "feedback.cutoff_hz");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"feedback\": {\"cutof_hz\": 5}"),
+               "feedback.cutof_hz");
   expect_error(edit("{\"action\": \"navigate\"",
                     "{\"action\": \"inject\", \"flow_ml_s\": 99}, "
                     "{\"action\": \"navigate\""),
