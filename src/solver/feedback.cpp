@@ -199,7 +199,8 @@ void hand_feedback(std::span<Instrument> insts, std::span<const Coupling> coupli
       bool ready = true;
       const Coupling* as_inner = nullptr;
       for (const Coupling& c : couplings) {
-        if (static_cast<std::size_t>(c.outer) == k && !done[c.inner]) ready = false;
+        const auto inner = static_cast<std::size_t>(c.inner);
+        if (static_cast<std::size_t>(c.outer) == k && (inner >= n || !done[inner])) ready = false;
         if (static_cast<std::size_t>(c.inner) == k && !insts[c.outer].parked) as_inner = &c;
       }
       if (!ready) continue;
