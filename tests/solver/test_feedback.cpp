@@ -1,0 +1,108 @@
+// Force feedback at the hand against the capstan equation (physics.md 6.1): a string pulled
+// round a bend against a load at its tip feels the load times exp(mu theta) on the pull and
+// exp(-mu theta) on the push, whichever way the hand force is formed.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+#include <string>
+#include <tuple>
+
+#include "vcsim/solver.h"
+
+using namespace vcsim;
+
+namespace {
+
+using HandForce = SolverSettings::HandForce;
+
+// A 150 mm string (E 10 MPa, 0.6 mm across: its bending length sqrt(EI / T) is 2.5 mm under the
+// 0.1 N load, against the bend's 15 mm radius) through a tube of 1.5 mm radius: 30 mm straight,
+// a quarter turn of 15 mm radius, 60 mm straight. The tip lies 30 mm into the second straight
+// and is pulled along it by kTipLoad. Mass scaling and damping as in scenario runs.
+struct CapstanScene {
+  static constexpr double kDt = 1e-3;
+  static constexpr double kTipLoad = 0.1;  // N
+  static constexpr double kAngle = std::numbers::pi / 2;
+  TriangleMesh mesh;
+  AabbTree tree;
+  Instrument inst;
+  SolverSettings s;
+  CapstanScene(double mu, HandForce hand_force) {
+    BentTubeSpec spec;
+    spec.straight1 = 30e-3;
+    spec.bend_radius = 15e-3;
+    spec.bend_angle = kAngle;
+    spec.straight2 = 60e-3;
+    spec.radius = 1.5e-3;
+    spec.ring_spacing = 1e-3;
+    mesh = make_bent_tube(spec);
+    check_and_repair(mesh, "capstan tube");
+    tree.build(mesh);
+    RodDef d;
+    d.length = 0.15;
+    d.segments = 150;
+    d.outer_radius = 0.3e-3;
+    d.youngs_modulus = 1e7;
+    d.density = 1000;
+    d.base = BoundaryKind::kFree;
+    d.tip = BoundaryKind::kFree;
+    Sheath sheath;
+    sheath.access_point = Vec3(0, 0, -5e-3);  // 5 mm before the tube's open end, on its axis
+    sheath.max_speed = 0.05;
+    inst = make_instrument(d, sheath, ContactMaterial{mu, mu}, 0.0);
+    scale_for_time_step(inst.model, kDt, kQuasiStaticKpRatio);
+    s.rod.dt = kDt;
+    set_quasi_static_damping(s.rod);
+    s.hand_force = hand_force;
+  }
+  // Mean hand force over the second half of `steps` steps of the command.
+  double mean_force(StaticWall& wall, const DriveCommand& c, int steps) {
+    double sum = 0.0;
+    for (int k = 0; k < steps; ++k) {
+      instrument_step(inst, &wall, s, c);
+      if (2 * k >= steps) sum += inst.drive.axial_force;
+    }
+    return sum / (steps - steps / 2);
+  }
+};
+
+class Capstan : public ::testing::TestWithParam<std::tuple<double, HandForce>> {};
+
+}  // namespace
+
+TEST_P(Capstan, HandForceFollowsTheCapstanEquation) {
+  const auto [mu, hand_force] = GetParam();
+  CapstanScene sc(mu, hand_force);
+  StaticWall wall(sc.mesh, sc.tree);
+  Instrument& in = sc.inst;
+  // Unloaded, insert the tip 30 mm past the bend; then load it and let it settle.
+  const double depth = 5e-3 + 30e-3 + 15e-3 * CapstanScene::kAngle + 30e-3;
+  using Mode = DriveCommand::Mode;
+  const double insert = sc.mean_force(wall, {Mode::kPosition, depth, 0.0}, 1800);  // at 50 mm/s
+  EXPECT_NEAR(in.drive.depth, depth, 1e-6);
+  EXPECT_LT(std::abs(insert), 0.02) << "an unloaded string slides in almost freely";
+  in.state.f_ext.back() = Vec3(CapstanScene::kTipLoad, 0.0, 0.0);
+  sc.mean_force(wall, {Mode::kVelocity, 0.0, 0.0}, 1000);
+  // The hand pulls the string back at 5 mm/s, then pushes it on: axial force < 0 means the
+  // string pulls the hand inward.
+  const double pull = sc.mean_force(wall, {Mode::kVelocity, -5e-3, 0.0}, 1500);
+  const double push = sc.mean_force(wall, {Mode::kVelocity, 5e-3, 0.0}, 1500);
+  const double pull_capstan = -CapstanScene::kTipLoad * std::exp(mu * CapstanScene::kAngle);
+  const double push_capstan = -CapstanScene::kTipLoad * std::exp(-mu * CapstanScene::kAngle);
+  EXPECT_NEAR(pull, pull_capstan, 0.02 * std::abs(pull_capstan));
+  EXPECT_NEAR(push, push_capstan, 0.02 * std::abs(push_capstan));
+  EXPECT_GT(in.state.x.back().x(), 15e-3) << "the tip stayed past the bend";
+}
+
+INSTANTIATE_TEST_SUITE_P(MuAndDefinition, Capstan,
+                         ::testing::Combine(::testing::Values(0.0, 0.1, 0.3),
+                                            ::testing::Values(HandForce::kImpulses,
+                                                              HandForce::kQuasiStatic)),
+                         [](const auto& p) {
+                           const int mu = static_cast<int>(std::lround(std::get<0>(p.param) * 10));
+                           return std::string(std::get<1>(p.param) == HandForce::kImpulses
+                                                  ? "Impulses"
+                                                  : "QuasiStatic") +
+                                  "Mu0" + std::to_string(mu);
+                         });
