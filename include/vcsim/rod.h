@@ -227,5 +227,9 @@ double max_speed(const RodState& state);
 // The discrete Darboux vector between two frames over the length l (frame a's coordinates),
 // with the quaternion double cover resolved.
 Vec3 darboux(const Quat& qa, const Quat& qb, double l);
+// The bending and twisting moment (N m, world) at vertex k that frame k exerts on frame k - 1
+// (physics.md eqs. 2-5, the torque the step adds to frame k - 1); zero at the rod's end vertices
+// (k = 0, m: a clamp's moment is not computed here).
+Vec3 vertex_moment(const RodModel& model, const RodState& state, int k);
 
 }  // namespace vcsim

@@ -464,6 +464,14 @@ double estimate_stable_dt(const RodModel& md, const RodSettings& s) {
   return dt;
 }
 
+Vec3 vertex_moment(const RodModel& md, const RodState& st, int k) {
+  if (k <= 0 || k >= md.m || !md.vertex_active[k]) return Vec3::Zero();
+  Vec3 on_a = Vec3::Zero(), on_b = Vec3::Zero();
+  bend_twist(st.q[k - 1], st.q[k - 1].toRotationMatrix(), st.q[k], md.vertex_length[k],
+             md.vertex_stiffness[k], md.rest_darboux[k], on_a, on_b);
+  return on_a;
+}
+
 double scale_for_time_step(RodModel& md, double dt, double kp_ratio) {
   for (int j = 0; j < md.m; ++j) {
     const double l = md.rest_length[j];

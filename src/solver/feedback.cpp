@@ -22,12 +22,18 @@ constexpr double kIndeterminateWeight = 1e-2;
 // out fast, a straight rod crammed into a dead end 57 %): its direction cannot decide a reaction.
 constexpr double kMaxStrain = 0.05;
 
-// The parallel-constraint penalty force of edge j on its first node (kernels.h parallel_penalty,
-// physics.md eq. 6): K_p (u - (u . d3) d3), u = e / l. Its second node receives the opposite.
-Vec3 edge_shear(const RodModel& md, const RodState& st, int j) {
-  const Vec3 u = (st.x[j + 1] - st.x[j]) / md.rest_length[j];
-  const Vec3 d3 = st.q[j] * Vec3::UnitZ();
-  return md.kp[j] * (u - u.dot(d3) * d3);
+// The shear force edge j carries onto its first node in a rod whose frames have negligible
+// inertia: frame j's torque balance, G_{j+1} - G_j + tau_ext_j + e_j x P_j = 0 (the parallel
+// penalty's torque on the frame is e x P, its forces on the nodes being the couple P, -P), gives
+// the part of P_j across the edge, t x (G_{j+1} - G_j + tau_ext_j) / |e_j| (physics.md 6.1). The
+// penalty's own P_j differs from it by the frame's (scaled) angular inertia over |e_j|. `g_next`
+// holds G_{j+1} on entry and G_j on return.
+Vec3 equilibrium_shear(const RodModel& md, const RodState& st, int j, const Vec3& t, double len,
+                       Vec3& g_next) {
+  const Vec3 g = vertex_moment(md, st, j);
+  const Vec3 shear = t.cross(g_next - g + st.tau_ext[j]) / len;
+  g_next = g;
+  return shear;
 }
 
 // Loads as the step applied them: wall contact impulses less the penetration fix-up, coupling
@@ -107,13 +113,17 @@ Vec3 quasi_static_force(Instrument& in, const Coupling* cp, Instrument* outer,
   };
   Vec3 q = Vec3::Zero();  // Q_i: the internal force of the edge distal to node i (none at the tip)
   const int first = std::max(1, in.drive.first_free);
+  Vec3 g = vertex_moment(md, st, md.n - 1);  // G at the distal vertex of edge i - 1
   for (int i = md.n - 1; i >= first; --i) {
     q += st.f_ext[i] + md.node_mass[i] * set.rod.gravity + in.felt_load[i];
     const Vec3 e = st.x[i] - st.x[i - 1];
     const double len = e.norm();
-    if (len < 1e-12) continue;
+    if (len < 1e-12) {
+      g = vertex_moment(md, st, i - 1);
+      continue;
+    }
     const Vec3 t = e / len;
-    const Vec3 shear = edge_shear(md, st, i - 1);
+    const Vec3 shear = equilibrium_shear(md, st, i - 1, t, len, g);
     Vec3 d;
     double heavy = 0.0;
     const CoaxialContact* cc = nullptr;

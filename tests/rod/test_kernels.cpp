@@ -228,3 +228,35 @@ TEST(RodKernels, ForcePassEqualsTheSumOfTheKernels) {
   for (int j = 0; j < md.m; ++j)
     EXPECT_LT((ws.torque[j] - t[j]).norm(), 1e-12 * t_scale) << "frame " << j;
 }
+
+// vertex_moment: frames turning at a steady rate kappa about d1 (a circular arc) carry the bending
+// moment E I kappa about d1 at every interior vertex, as a torque on the proximal frame that turns
+// it toward the distal one; the free ends carry none.
+TEST(VertexMoment, CircularArcCarriesEIKappa) {
+  RodDef d;
+  d.length = 0.1;
+  d.segments = 20;
+  d.outer_radius = 0.4e-3;
+  d.youngs_modulus = 5e9;
+  d.base = BoundaryKind::kFree;
+  d.tip = BoundaryKind::kFree;
+  const RodModel md = build_rod(d);
+  RodState st = make_state(md, d);
+  const double kappa = 20.0;  // 1/m: a 50 mm radius
+  const double l = d.length / d.segments;
+  for (int j = 0; j < md.m; ++j)
+    st.q[j] = Quat(Eigen::AngleAxisd(kappa * l * j, Vec3::UnitX())) * st.q[0];
+  const double ei = md.vertex_stiffness[1].x();
+  EXPECT_NEAR(ei, d.youngs_modulus * std::numbers::pi * std::pow(d.outer_radius, 4) / 4, 1e-12);
+  const Vec3 axis = st.q[0] * Vec3::UnitX();
+  for (int k = 1; k < md.m; ++k) {
+    const Vec3 g = vertex_moment(md, st, k);
+    // cos(a / 2) K 2 sin(a / 2) / l with a = kappa l: E I sin(kappa l) / l, within 0.2 % of E I
+    // kappa.
+    EXPECT_NEAR(g.dot(axis), ei * std::sin(kappa * l) / l, 1e-9 * ei * kappa) << "vertex " << k;
+    EXPECT_NEAR(g.dot(axis), ei * kappa, 2e-3 * ei * kappa);
+    EXPECT_NEAR((g - g.dot(axis) * axis).norm(), 0.0, 1e-9 * ei * kappa);
+  }
+  EXPECT_EQ(vertex_moment(md, st, 0), Vec3::Zero());
+  EXPECT_EQ(vertex_moment(md, st, md.m), Vec3::Zero());
+}
