@@ -7,6 +7,7 @@
 #include <random>
 
 #include "kernels.h"
+#include "test_rods.h"
 #include "vcsim/rod.h"
 
 using namespace vcsim;
@@ -177,13 +178,7 @@ TEST(RodKernels, SpinOfAFreeSymmetricTopPrecessesExactlyAtAnyStep) {
 // forces and torques equal the sum of bend_twist and parallel_penalty over the vertices and
 // edges, so the gradient checks above hold for the step itself.
 TEST(RodKernels, ForcePassEqualsTheSumOfTheKernels) {
-  RodDef d;
-  d.length = 0.05;
-  d.segments = 37;
-  d.outer_radius = 0.4e-3;
-  d.youngs_modulus = 30e9;
-  d.base = BoundaryKind::kFree;
-  d.tip = BoundaryKind::kFree;
+  RodDef d = test::free_rod(0.05, 37, 0.4e-3, 30e9);
   d.tip_shape = {TipSection::arc(3e-3, 2.0, 0.4)};
   const RodModel md = build_rod(d);
   RodState st = make_state(md, d);
@@ -233,13 +228,7 @@ TEST(RodKernels, ForcePassEqualsTheSumOfTheKernels) {
 // moment E I kappa about d1 at every interior vertex, as a torque on the proximal frame that turns
 // it toward the distal one; the free ends carry none.
 TEST(VertexMoment, CircularArcCarriesEIKappa) {
-  RodDef d;
-  d.length = 0.1;
-  d.segments = 20;
-  d.outer_radius = 0.4e-3;
-  d.youngs_modulus = 5e9;
-  d.base = BoundaryKind::kFree;
-  d.tip = BoundaryKind::kFree;
+  const RodDef d = test::free_rod(0.1, 20, 0.4e-3, 5e9);
   const RodModel md = build_rod(d);
   RodState st = make_state(md, d);
   const double kappa = 20.0;  // 1/m: a 50 mm radius

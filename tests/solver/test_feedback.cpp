@@ -8,6 +8,7 @@
 #include <string>
 #include <tuple>
 
+#include "test_rods.h"
 #include "vcsim/solver.h"
 
 using namespace vcsim;
@@ -39,14 +40,7 @@ struct CapstanScene {
     mesh = make_bent_tube(spec);
     check_and_repair(mesh, "capstan tube");
     tree.build(mesh);
-    RodDef d;
-    d.length = 0.15;
-    d.segments = 150;
-    d.outer_radius = 0.3e-3;
-    d.youngs_modulus = 1e7;
-    d.density = 1000;
-    d.base = BoundaryKind::kFree;
-    d.tip = BoundaryKind::kFree;
+    const RodDef d = test::free_rod(0.15, 150, 0.3e-3, 1e7);
     Sheath sheath;
     sheath.access_point = Vec3(0, 0, -5e-3);  // 5 mm before the tube's open end, on its axis
     sheath.max_speed = 0.05;

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <numbers>
 
+#include "test_rods.h"
 #include "vcsim/experiments.h"
 #include "vcsim/solver.h"
 
@@ -17,15 +18,7 @@ namespace {
 // A quasi-static test rod: a stiff-enough polymer wire whose density is scaled so that the
 // explicit step is 1 ms (the scaling changes inertia only, not statics or friction).
 RodDef test_rod(double length, int segments) {
-  RodDef d;
-  d.length = length;
-  d.segments = segments;
-  d.outer_radius = 0.45e-3;
-  d.youngs_modulus = 2e9;
-  d.density = 1000;
-  d.base = BoundaryKind::kFree;
-  d.tip = BoundaryKind::kFree;
-  return d;
+  return test::free_rod(length, segments, 0.45e-3, 2e9);
 }
 
 double scaled_density(RodDef d, double dt) {
