@@ -156,11 +156,12 @@ struct SolverSettings {
   double coherence_margin = 0.6e-3;     // m, query radius beyond contact reach (for skipping)
   double leaf_cache_slack = 0.1e-3;  // m, how far a node may move before its leaves are re-listed
   // How the hand's axial force is formed (physics.md 6.1). kImpulses: the step's own wall and
-  // coupling reactions (less their fix-ups) and applied loads, exact in slow motion (the capstan
-  // test) but carrying the scaled momentum they stop. kQuasiStatic (opt-in): the reactions a rod of
-  // negligible mass would need in the step's shape, walked from the tip; 3-5 times smaller spikes
-  // in the default scenario, but 15-20 % low on a slow capstan. The torque is the hub's twisting
-  // moment either way.
+  // coupling reactions (less their fix-ups) and applied loads, exact in slow motion but carrying
+  // the scaled momentum they stop. kQuasiStatic (opt-in): the reactions a rod of negligible mass
+  // (nodes and frames) would need in the step's shape, walked from the tip; 4-8 times fewer
+  // spikes in the default scenario and exact on a string round a bend (both pass the capstan
+  // test), but it reads a stiff rod pushed round a bend 3 times low. The torque is the hub's
+  // twisting moment either way.
   enum class HandForce { kImpulses, kQuasiStatic };
   HandForce hand_force = HandForce::kImpulses;
   // Optional first-order low-pass of the hand force and torque for a haptic device (Hz);
