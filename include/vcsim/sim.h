@@ -121,7 +121,7 @@ struct FluoroSettings {
 // What the hands feel (physics.md 6.1): the hand-force definition and an optional low-pass for a
 // haptic device.
 struct FeedbackSettings {
-  SolverSettings::HandForce hand_force = SolverSettings::HandForce::kImpulses;
+  SolverSettings::HandForce hand_force = SolverSettings::HandForce::kQuasiStatic;
   double cutoff_hz = 0.0;  // first-order low-pass of force and torque; 0: the raw signal
 };
 

@@ -155,15 +155,14 @@ struct SolverSettings {
   double penetration_correction = 0.5;  // fraction of a penetration removed per step
   double coherence_margin = 0.6e-3;     // m, query radius beyond contact reach (for skipping)
   double leaf_cache_slack = 0.1e-3;  // m, how far a node may move before its leaves are re-listed
-  // How the hand's axial force is formed (physics.md 6.1). kImpulses: the step's own wall and
-  // coupling reactions (less their fix-ups) and applied loads, exact in slow motion but carrying
-  // the scaled momentum they stop. kQuasiStatic (opt-in): the reactions a rod of negligible mass
-  // (nodes and frames) would need in the step's shape, walked from the tip; 4-8 times fewer
-  // spikes in the default scenario and exact on a string round a bend (both pass the capstan
-  // test), but it reads a stiff rod pushed round a bend 3 times low. The torque is the hub's
-  // twisting moment either way.
+  // How the hand's axial force is formed (physics.md 6.1). kQuasiStatic (the default): the
+  // reactions a rod of negligible mass (nodes and frames) would need in the step's shape, walked
+  // from the tip; free of the scaled inertia. kImpulses: the step's own wall and coupling reactions
+  // (less their fix-ups) and applied loads, carrying the scaled momentum they stop (8-15 times
+  // the spikes in the default scenario). Both follow the capstan equation in slow motion
+  // (tests/solver/test_feedback.cpp). The torque is the hub's twisting moment either way.
   enum class HandForce { kImpulses, kQuasiStatic };
-  HandForce hand_force = HandForce::kImpulses;
+  HandForce hand_force = HandForce::kQuasiStatic;
   // Optional first-order low-pass of the hand force and torque for a haptic device (Hz);
   // 0 reports the raw signal.
   double feedback_cutoff_hz = 0.0;

@@ -198,10 +198,10 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   }
   if (f.has("feedback")) {
     JsonFields fb = f.object("feedback");
-    const std::string kind = fb.text_or("hand_force", "impulses");
-    if (kind == "quasi-static") {
-      sc.feedback.hand_force = SolverSettings::HandForce::kQuasiStatic;
-    } else if (kind != "impulses") {
+    const std::string kind = fb.text_or("hand_force", "quasi-static");
+    if (kind == "impulses") {
+      sc.feedback.hand_force = SolverSettings::HandForce::kImpulses;
+    } else if (kind != "quasi-static") {
       fb.fail("hand_force", "expected quasi-static or impulses, got '" + kind + "'");
     }
     sc.feedback.cutoff_hz = fb.nonnegative_or("cutoff_hz", sc.feedback.cutoff_hz);
