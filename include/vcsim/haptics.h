@@ -48,6 +48,25 @@ struct ForceFeedback {
   double torque_nm = 0.0;
 };
 
+// Hub forces handed to a device at its own message rate, below the physics rate: each message
+// carries the mean of the forces and torques published since the previous one (a boxcar
+// decimation filter), not the last sample, so a one-step spike reaches a motor divided by the
+// steps per message and the signal does not alias (docs/devices.md). Not thread-safe on its own.
+class FeedbackDecimator {
+ public:
+  void resize(std::size_t instruments);
+  std::size_t size() const { return n_.size(); }
+  // One physics step's force (N) and torque (N m) of instrument i.
+  void add(std::size_t i, double force_n, double torque_nm);
+  // The means since the last take of instrument i (the last means again when nothing was added
+  // since), and a fresh start.
+  void take(std::size_t i, double& force_n, double& torque_nm);
+
+ private:
+  std::vector<double> force_sum_, torque_sum_, force_, torque_;
+  std::vector<std::uint64_t> n_;
+};
+
 // Plausibility limits: a command beyond them is a malformed message (network) or an input error
 // (timeline file), never a motion.
 struct CommandLimits {

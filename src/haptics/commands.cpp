@@ -215,4 +215,30 @@ void ScriptedTimeline::publish(std::span<const ForceFeedback> feedback) {
   std::copy(feedback.begin(), feedback.end(), feedback_.begin());
 }
 
+void FeedbackDecimator::resize(std::size_t instruments) {
+  force_sum_.assign(instruments, 0.0);
+  torque_sum_.assign(instruments, 0.0);
+  force_.assign(instruments, 0.0);
+  torque_.assign(instruments, 0.0);
+  n_.assign(instruments, 0);
+}
+
+void FeedbackDecimator::add(std::size_t i, double force_n, double torque_nm) {
+  force_sum_[i] += force_n;
+  torque_sum_[i] += torque_nm;
+  ++n_[i];
+}
+
+void FeedbackDecimator::take(std::size_t i, double& force_n, double& torque_nm) {
+  if (n_[i] > 0) {
+    const double n = static_cast<double>(n_[i]);
+    force_[i] = force_sum_[i] / n;
+    torque_[i] = torque_sum_[i] / n;
+    force_sum_[i] = torque_sum_[i] = 0.0;
+    n_[i] = 0;
+  }
+  force_n = force_[i];
+  torque_nm = torque_[i];
+}
+
 }  // namespace vcsim

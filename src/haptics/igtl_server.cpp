@@ -108,9 +108,9 @@ struct IgtlServer::Impl {
   mutable std::mutex cmd_mu;
   DeviceCommands latest;
 
-  // Hand-over from the physics thread: the latest hub forces, one per instrument.
+  // Hand-over from the physics thread: the hub forces since the last message, one per instrument.
   std::mutex fb_mu;
-  std::vector<ForceFeedback> feedback;
+  FeedbackDecimator feedback;
 
   std::atomic<std::uint64_t> n_connections{0}, n_disconnections{0}, n_accepted{0}, n_dropped{0},
       n_feedback{0};
@@ -400,11 +400,19 @@ struct IgtlServer::Impl {
   }
 
   void send_feedback() {
-    if (client_fd < 0) return;
+    if (client_fd < 0) {
+      // Nobody to send to: start each instrument's mean afresh, so that a client connecting later
+      // is not sent the mean over the time without one.
+      std::lock_guard lock(fb_mu);
+      for (std::size_t i = 0; i < fb_copy.size(); ++i)
+        feedback.take(i, fb_copy[i].axial_force_n, fb_copy[i].torque_nm);
+      return;
+    }
     if (!tx.empty()) return flush();  // still sending the last batch: forces are latest-value
     {
       std::lock_guard lock(fb_mu);
-      fb_copy = feedback;
+      for (std::size_t i = 0; i < fb_copy.size(); ++i)
+        feedback.take(i, fb_copy[i].axial_force_n, fb_copy[i].torque_nm);
     }
     igtl::TimeStamp::Pointer ts = igtl::TimeStamp::New();
     ts->GetTime();
@@ -510,13 +518,13 @@ IgtlServer::IgtlServer(IgtlServerOptions options) : impl_(std::make_unique<Impl>
   // Commands start at rest: depth 0, angle 0, no pressure, no flow.
   for (const auto& n : s.opt.instruments) {
     s.latest.instruments.push_back({n, InstrumentCommand::Mode::kPosition, 0.0, 0.0});
-    s.feedback.push_back({n, 0.0, 0.0});
+    s.fb_copy.push_back({n, 0.0, 0.0});
     auto msg = igtl::SensorMessage::New();
     msg->SetDeviceName(cat("force_", n).c_str());
     msg->SetLength(2);
     s.out_msgs.push_back(msg);
   }
-  s.fb_copy = s.feedback;
+  s.feedback.resize(s.fb_copy.size());
   s.log_window = Clock::now();
   s.thread = std::thread([&s] { s.run(); });
 }
@@ -558,10 +566,10 @@ void IgtlServer::publish(std::span<const ForceFeedback> feedback) {
   for (const auto& f : feedback) {
     const int i = s.index_of(f.name);
     if (i < 0) continue;  // an instrument the device does not track
-    auto& dst = s.feedback[static_cast<std::size_t>(i)];
     // A non-finite force must not reach a motor.
-    dst.axial_force_n = std::isfinite(f.axial_force_n) ? f.axial_force_n : 0.0;
-    dst.torque_nm = std::isfinite(f.torque_nm) ? f.torque_nm : 0.0;
+    s.feedback.add(static_cast<std::size_t>(i),
+                   std::isfinite(f.axial_force_n) ? f.axial_force_n : 0.0,
+                   std::isfinite(f.torque_nm) ? f.torque_nm : 0.0);
   }
 }
 

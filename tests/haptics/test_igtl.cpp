@@ -340,3 +340,27 @@ TEST(Igtl, OptionsAreCheckedAndShutdownIsPrompt) {
 }
 
 }  // namespace
+
+// A device's force message carries the mean of the steps since the previous message: a one-step
+// spike among ten steps arrives as a tenth of itself, a message period without a step repeats the
+// last mean, and each instrument keeps its own.
+TEST(FeedbackDecimator, MessagesCarryThePeriodsMean) {
+  vcsim::FeedbackDecimator d;
+  d.resize(2);
+  double f = -1.0, t = -1.0;
+  d.take(0, f, t);
+  EXPECT_EQ(f, 0.0) << "nothing published yet: zero, not garbage";
+  for (int k = 0; k < 10; ++k) d.add(0, k == 4 ? 11.0 : 1.0, k == 4 ? 0.011 : 0.001);
+  d.add(1, -3.0, 0.5);
+  d.take(0, f, t);
+  EXPECT_DOUBLE_EQ(f, 2.0);
+  EXPECT_DOUBLE_EQ(t, 0.002);
+  d.take(0, f, t);
+  EXPECT_DOUBLE_EQ(f, 2.0) << "an empty period repeats the last mean";
+  d.add(0, 4.0, 0.0);
+  d.take(0, f, t);
+  EXPECT_DOUBLE_EQ(f, 4.0) << "a new period starts afresh";
+  d.take(1, f, t);
+  EXPECT_DOUBLE_EQ(f, -3.0);
+  EXPECT_DOUBLE_EQ(t, 0.5);
+}
