@@ -1,12 +1,15 @@
 // Force feedback at the hand against the capstan equation (physics.md 6.1): a string pulled
 // round a bend against a load at its tip feels the load times exp(mu theta) on the pull and
-// exp(-mu theta) on the push, whichever way the hand force is formed.
+// exp(-mu theta) on the push, whichever way the hand force is formed: on the vessel wall, and
+// running in a catheter's lumen.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <numbers>
 #include <string>
 #include <tuple>
+#include <vector>
 
 #include "test_rods.h"
 #include "vcsim/solver.h"
@@ -90,6 +93,85 @@ TEST_P(Capstan, HandForceFollowsTheCapstanEquation) {
 }
 
 INSTANTIATE_TEST_SUITE_P(MuAndDefinition, Capstan,
+                         ::testing::Combine(::testing::Values(0.0, 0.1, 0.3),
+                                            ::testing::Values(HandForce::kImpulses,
+                                                              HandForce::kQuasiStatic)),
+                         [](const auto& p) {
+                           const int mu = static_cast<int>(std::lround(std::get<0>(p.param) * 10));
+                           return std::string(std::get<1>(p.param) == HandForce::kImpulses
+                                                  ? "Impulses"
+                                                  : "QuasiStatic") +
+                                  "Mu0" + std::to_string(mu);
+                         });
+
+namespace {
+
+// The same bend with a catheter held still in it (ID 1.2 mm, OD 2 mm) and a string (E 10 MPa,
+// 0.6 mm across) running in its lumen, tip 25 mm past the bend and pulled along the second
+// straight by kTipLoad: the lumen friction is the capstan's.
+struct LumenCapstanScene {
+  static constexpr double kDt = 1e-3;
+  CapstanScene tube{0.1, HandForce::kQuasiStatic};
+  std::vector<Instrument> insts;  // [0] string, [1] catheter
+  std::vector<Coupling> couplings;
+  SolverSettings s;
+  LumenCapstanScene(double mu, HandForce hand_force) {
+    Sheath sheath;
+    sheath.access_point = Vec3(0, 0, -5e-3);
+    sheath.max_speed = 0.05;
+    const RodDef wire = test::free_rod(0.2, 200, 0.3e-3, 1e7);
+    RodDef cath = test::free_rod(0.2, 100, 1.0e-3, 1e8);
+    cath.inner_radius = 0.6e-3;
+    insts.push_back(make_instrument(wire, sheath, ContactMaterial{0.1, 0.1}, 0.0));
+    insts.push_back(make_instrument(cath, sheath, ContactMaterial{0.1, 0.1}, 0.0));
+    for (Instrument& in : insts) scale_for_time_step(in.model, kDt, kQuasiStaticKpRatio);
+    Coupling c;
+    c.inner = 0;
+    c.outer = 1;
+    c.mu = mu;
+    couplings.push_back(c);
+    s = tube.s;
+    s.hand_force = hand_force;
+  }
+  double mean_wire_force(StaticWall& wall, const std::array<DriveCommand, 2>& c, int steps) {
+    double sum = 0.0;
+    for (int k = 0; k < steps; ++k) {
+      step_instruments(insts, couplings, &wall, s, c);
+      if (2 * k >= steps) sum += insts[0].drive.axial_force;
+    }
+    return sum / (steps - steps / 2);
+  }
+};
+
+class LumenCapstan : public ::testing::TestWithParam<std::tuple<double, HandForce>> {};
+
+}  // namespace
+
+TEST_P(LumenCapstan, WireInACatheterFollowsTheCapstanEquation) {
+  const auto [mu, hand_force] = GetParam();
+  LumenCapstanScene sc(mu, hand_force);
+  StaticWall wall(sc.tube.mesh, sc.tube.tree);
+  using Mode = DriveCommand::Mode;
+  const double bend_end = 5e-3 + 30e-3 + 15e-3 * CapstanScene::kAngle;
+  const DriveCommand hold{Mode::kVelocity, 0.0, 0.0};
+  // The catheter 45 mm past the bend, then the string 25 mm past it.
+  const DriveCommand place_catheter{Mode::kPosition, bend_end + 45e-3, 0.0};
+  const DriveCommand place_wire{Mode::kPosition, bend_end + 25e-3, 0.0};
+  sc.mean_wire_force(wall, {hold, place_catheter}, 2000);
+  sc.mean_wire_force(wall, {place_wire, hold}, 1800);
+  sc.insts[0].state.f_ext.back() = Vec3(CapstanScene::kTipLoad, 0.0, 0.0);
+  sc.mean_wire_force(wall, {hold, hold}, 1000);
+  const double pull =
+      sc.mean_wire_force(wall, {DriveCommand{Mode::kVelocity, -5e-3, 0.0}, hold}, 1500);
+  const double push =
+      sc.mean_wire_force(wall, {DriveCommand{Mode::kVelocity, 5e-3, 0.0}, hold}, 1500);
+  const double pull_capstan = -CapstanScene::kTipLoad * std::exp(mu * CapstanScene::kAngle);
+  const double push_capstan = -CapstanScene::kTipLoad * std::exp(-mu * CapstanScene::kAngle);
+  EXPECT_NEAR(pull, pull_capstan, 0.02 * std::abs(pull_capstan));
+  EXPECT_NEAR(push, push_capstan, 0.02 * std::abs(push_capstan));
+}
+
+INSTANTIATE_TEST_SUITE_P(MuAndDefinition, LumenCapstan,
                          ::testing::Combine(::testing::Values(0.0, 0.1, 0.3),
                                             ::testing::Values(HandForce::kImpulses,
                                                               HandForce::kQuasiStatic)),
