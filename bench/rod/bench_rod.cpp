@@ -1,5 +1,6 @@
 // Google Benchmark: one rod step (forces, integration, one global distance iteration, no
-// contacts) and the distance solve alone, for 64 .. 1024 nodes. Time per step is linear in N.
+// contacts), explicit and linearly implicit, and the distance solve alone, for 64 .. 1024 nodes.
+// Time per step is linear in N.
 #include <benchmark/benchmark.h>
 
 #include "distance.h"
@@ -14,7 +15,7 @@ struct Rig {
   RodState st;
   RodSettings s;
   RodWorkspace ws;
-  explicit Rig(int nodes) {
+  explicit Rig(int nodes, Integrator integrator = Integrator::kSymplecticEuler) {
     RodDef d;
     d.length = 0.255;
     d.segments = nodes - 1;
@@ -25,7 +26,10 @@ struct Rig {
     md = build_rod(d);
     st = make_state(md, d);
     s.gravity = Vec3(0, 0, -9.81);
-    s.dt = estimate_stable_dt(md, s);
+    s.integrator = integrator;
+    // The explicit step at its stability limit; the implicit one at the scenarios' 0.5 ms, with
+    // the physical mass (some 2000 times the explicit limit here).
+    s.dt = integrator == Integrator::kSymplecticEuler ? estimate_stable_dt(md, s) : 0.5e-3;
     ws.resize(md);
     for (int k = 0; k < 2000; ++k) rod_step(md, s, st, ws);  // a bent, moving rod
   }
@@ -41,6 +45,19 @@ void BM_RodStep(benchmark::State& state) {
   state.counters["nodes"] = static_cast<double>(state.range(0));
 }
 BENCHMARK(BM_RodStep)->RangeMultiplier(2)->Range(64, 1024)->Complexity(benchmark::oN);
+
+// The linearly implicit step (physics.md 5.5): Hessian blocks, block-tridiagonal solve, then the
+// same distance iteration and positions.
+void BM_RodStepImplicit(benchmark::State& state) {
+  Rig rig(static_cast<int>(state.range(0)), Integrator::kLinearlyImplicit);
+  for (auto _ : state) {
+    rod_step(rig.md, rig.s, rig.st, rig.ws);
+    benchmark::DoNotOptimize(rig.st.x.data());
+  }
+  state.SetComplexityN(state.range(0));
+  state.counters["nodes"] = static_cast<double>(state.range(0));
+}
+BENCHMARK(BM_RodStepImplicit)->RangeMultiplier(2)->Range(64, 1024)->Complexity(benchmark::oN);
 
 void BM_GlobalDistanceSolve(benchmark::State& state) {
   Rig rig(static_cast<int>(state.range(0)));

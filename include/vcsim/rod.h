@@ -9,6 +9,8 @@
 // clamp is active). Everything is SI (m, kg, s, N, Pa, rad).
 #pragma once
 
+#include <Eigen/Cholesky>
+
 #include "vcsim/core.h"
 
 #include <array>
@@ -134,8 +136,21 @@ enum class DistanceMethod {
 const char* to_string(DistanceMethod m);
 DistanceMethod distance_method_from_string(const std::string& s, const std::string& source);
 
+// How velocities follow from the forces (physics.md 5.3, 5.5).
+enum class Integrator {
+  // Forces at the start of the step (eq. 9): stable only while the step resolves the stiffest
+  // mode, so fine instruments need mass scaling (5.4).
+  kSymplecticEuler,
+  // One Newton step of backward Euler on the elastic forces (bending, twisting, the parallel
+  // penalty) with their Gauss-Newton Hessian and a block-tridiagonal solve: stable at any step
+  // with the instrument's physical mass.
+  kLinearlyImplicit,
+};
+const char* to_string(Integrator i);
+
 struct RodSettings {
-  double dt = 1.0e-3;           // (s)
+  double dt = 1.0e-3;  // (s)
+  Integrator integrator = Integrator::kSymplecticEuler;
   Vec3 gravity = Vec3::Zero();  // (m/s^2)
   DistanceMethod distance = DistanceMethod::kGlobal;
   int iterations = 1;                  // block solver iterations
@@ -170,6 +185,14 @@ struct RodWorkspace {
   std::vector<std::uint64_t> frame_mask;  // (m) frame_free as a bit mask (rod step scratch)
   std::vector<Vec3> node_impulse;  // (n) constraint impulses of this step (N s), held nodes too
   std::vector<double> scratch;     // 6 (m + 2): per-vertex and per-edge terms of rod_forces
+  // Integrator::kLinearlyImplicit, sized on its first step: per node-and-frame pair p (node p,
+  // frame p), the blocks of the symmetric (M + dt^2 H) coupling p to p and to p + 1, the
+  // factors of the eliminated diagonal, the forces and the right-hand side.
+  using Mat6 = Eigen::Matrix<double, 6, 6>;
+  using Vec6 = Eigen::Matrix<double, 6, 1>;
+  std::vector<Mat6> imp_diag, imp_upper;
+  std::vector<Eigen::LLT<Mat6>> imp_llt;
+  std::vector<Vec6> imp_force, imp_rhs;
   void resize(const RodModel& model);
   // Frame j's rotation matrix gathered from `rot`.
   Mat3 frame_rotation(int j) const;

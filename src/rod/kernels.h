@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "vcsim/core.h"
+#include "vcsim/rod.h"
 
 // The rod's hot loops are compiled twice, for AVX2 and for the x86-64 baseline (SSE2), and the
 // loader picks one for the machine. Both give the same bits: the loops are element-wise,
@@ -120,5 +121,9 @@ inline Quat integrate_rotation(const Quat& q, const Vec3& w, double dt) {
   const double s = 1.0 / std::sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
   return Quat(nw * s, nx * s, ny * s, nz * s);
 }
+
+// The linearly implicit velocity update (implicit.cpp; physics.md 5.5): replaces the explicit one
+// of rod_integrate_velocities when settings.integrator asks for it.
+void implicit_velocities(const RodModel& md, const RodSettings& s, RodState& st, RodWorkspace& ws);
 
 }  // namespace vcsim::internal

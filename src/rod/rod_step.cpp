@@ -315,6 +315,7 @@ void rod_forces(const RodModel& md, const RodSettings& s, RodState& st, RodWorks
 
 VCSIM_SIMD_CLONES void rod_integrate_velocities(const RodModel& md, const RodSettings& s,
                                                 RodState& st, RodWorkspace& ws) {
+  if (s.integrator == Integrator::kLinearlyImplicit) return implicit_velocities(md, s, st, ws);
   // Semi-implicit: velocities first from the forces at the current positions (held nodes and
   // prescribed frames have zero inverse mass and keep their prescribed velocities).
   const double dt = s.dt;

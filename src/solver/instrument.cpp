@@ -429,6 +429,13 @@ void SolverSettings::validate(const std::string& source) const {
   require_nonnegative(coherence_margin, source, "coherence_margin");
   require_nonnegative(leaf_cache_slack, source, "leaf_cache_slack");
   require_nonnegative(feedback_cutoff_hz, source, "feedback_cutoff_hz");
+  if (rod.integrator == Integrator::kLinearlyImplicit && collisions) {
+    // physics.md 5.5: with the physical mass the projected Gauss-Seidel loop of distance chain,
+    // contacts and friction does not converge in a usable number of iterations.
+    throw InputError(source, "rod.integrator",
+                     "expected symplectic-euler where instruments collide: the linearly implicit "
+                     "step runs at the physical mass, which the contact solve cannot take yet");
+  }
 }
 
 Instrument make_instrument(const RodDef& def_in, const Sheath& sheath,

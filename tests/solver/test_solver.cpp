@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <string>
 
 #include "test_rods.h"
 #include "vcsim/experiments.h"
@@ -191,6 +192,17 @@ TEST(Solver, BadInstrumentInputIsAnInputError) {
   EXPECT_THROW(make_instrument(d, Sheath{}, ContactMaterial{}, 0.2), InputError);
   d.base = BoundaryKind::kClamped;
   EXPECT_THROW(make_instrument(d, Sheath{}, ContactMaterial{}, 0.05), InputError);
+  // The linearly implicit rod step is refused where instruments collide (physics.md 5.5).
+  SolverSettings s;
+  s.rod.integrator = Integrator::kLinearlyImplicit;
+  try {
+    s.validate("scene");
+    ADD_FAILURE() << "accepted the implicit step with collisions";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("rod.integrator"), std::string::npos) << e.what();
+  }
+  s.collisions = false;
+  EXPECT_NO_THROW(s.validate("scene"));
 }
 
 // The paper's Table 1 targets (issue 3): one global iteration compresses at most 0.45 %, 25
