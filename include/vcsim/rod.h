@@ -146,7 +146,6 @@ enum class Integrator {
   // with the instrument's physical mass.
   kLinearlyImplicit,
 };
-const char* to_string(Integrator i);
 
 struct RodSettings {
   double dt = 1.0e-3;  // (s)

@@ -167,14 +167,4 @@ void implicit_velocities(const RodModel& md, const RodSettings& s, RodState& st,
 
 }  // namespace internal
 
-const char* to_string(Integrator i) {
-  switch (i) {
-    case Integrator::kSymplecticEuler:
-      return "symplectic-euler";
-    case Integrator::kLinearlyImplicit:
-      return "linearly-implicit";
-  }
-  return "?";
-}
-
 }  // namespace vcsim

@@ -48,6 +48,19 @@ void RodSettings::validate(const std::string& source) const {
   require_nonnegative(angular_drag, source, "angular_drag");
   require_nonnegative(internal_damping, source, "internal_damping");
   require_positive(penalty_modulus_scale, source, "penalty_modulus_scale");
+  if (integrator == Integrator::kLinearlyImplicit) {
+    // physics.md 5.5: only the bending, twisting and parallel-penalty forces are implicit.
+    if (distance == DistanceMethod::kPenalty) {
+      throw InputError(source, "distance",
+                       "expected distance constraints with the linearly implicit step (its "
+                       "Hessian has no stretch term), got penalty");
+    }
+    if (internal_damping > 0.0) {
+      throw InputError(source, "internal_damping",
+                       "expected 0 with the linearly implicit step (that damping is explicit and "
+                       "unstable at the physical mass; backward Euler damps the stiff modes)");
+    }
+  }
 }
 
 namespace {

@@ -83,3 +83,24 @@ TEST(Implicit, FirstModeSwingsAtTheBeamFrequency) {
   RecordProperty("f1_hz_beam", std::to_string(f1));
   EXPECT_NEAR(f, f1, 0.01 * f1);
 }
+
+// What the implicit step leaves explicit cannot run at the physical mass: refused by name.
+TEST(Implicit, SettingsItCannotRunAreRefused) {
+  RodSettings s;
+  s.integrator = Integrator::kLinearlyImplicit;
+  EXPECT_NO_THROW(s.validate("rod"));
+  auto field_of = [](const RodSettings& bad) {
+    try {
+      bad.validate("rod");
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  RodSettings penalty = s;
+  penalty.distance = DistanceMethod::kPenalty;
+  EXPECT_NE(field_of(penalty).find("distance"), std::string::npos) << field_of(penalty);
+  RodSettings damped = s;
+  damped.internal_damping = 1e-4;
+  EXPECT_NE(field_of(damped).find("internal_damping"), std::string::npos) << field_of(damped);
+}

@@ -19,6 +19,38 @@ using namespace vcsim;
 namespace {
 
 using HandForce = SolverSettings::HandForce;
+using Params = std::tuple<double, HandForce>;  // friction coefficient, hand-force definition
+
+// Mean over the second half of `steps` calls of `step`, which steps the scene and returns the
+// hand force of interest.
+template <class Step>
+double mean_of_second_half(int steps, Step&& step) {
+  double sum = 0.0;
+  for (int k = 0; k < steps; ++k) {
+    const double f = step();
+    if (2 * k >= steps) sum += f;
+  }
+  return sum / (steps - steps / 2);
+}
+
+// Euler-Eytelwein: pulling against the tip load F round the quarter turn the hand feels
+// -F exp(mu pi/2), pushing on -F exp(-mu pi/2); within 2 %.
+void expect_capstan(double mu, double tip_load, double pull, double push) {
+  const double pull_capstan = -tip_load * std::exp(mu * std::numbers::pi / 2);
+  const double push_capstan = -tip_load * std::exp(-mu * std::numbers::pi / 2);
+  EXPECT_NEAR(pull, pull_capstan, 0.02 * std::abs(pull_capstan));
+  EXPECT_NEAR(push, push_capstan, 0.02 * std::abs(push_capstan));
+}
+
+std::string param_name(const ::testing::TestParamInfo<Params>& p) {
+  const int mu = static_cast<int>(std::lround(std::get<0>(p.param) * 10));
+  return std::string(std::get<1>(p.param) == HandForce::kImpulses ? "Impulses" : "QuasiStatic") +
+         "Mu0" + std::to_string(mu);
+}
+
+const auto kMuAndDefinition =
+    ::testing::Combine(::testing::Values(0.0, 0.1, 0.3),
+                       ::testing::Values(HandForce::kImpulses, HandForce::kQuasiStatic));
 
 // A 150 mm string (E 10 MPa, 0.6 mm across: its bending length sqrt(EI / T) is 2.5 mm under the
 // 0.1 N load, against the bend's 15 mm radius) through a tube of 1.5 mm radius: 30 mm straight,
@@ -55,16 +87,14 @@ struct CapstanScene {
   }
   // Mean hand force over the second half of `steps` steps of the command.
   double mean_force(StaticWall& wall, const DriveCommand& c, int steps) {
-    double sum = 0.0;
-    for (int k = 0; k < steps; ++k) {
+    return mean_of_second_half(steps, [&] {
       instrument_step(inst, &wall, s, c);
-      if (2 * k >= steps) sum += inst.drive.axial_force;
-    }
-    return sum / (steps - steps / 2);
+      return inst.drive.axial_force;
+    });
   }
 };
 
-class Capstan : public ::testing::TestWithParam<std::tuple<double, HandForce>> {};
+class Capstan : public ::testing::TestWithParam<Params> {};
 
 }  // namespace
 
@@ -85,24 +115,11 @@ TEST_P(Capstan, HandForceFollowsTheCapstanEquation) {
   // string pulls the hand inward.
   const double pull = sc.mean_force(wall, {Mode::kVelocity, -5e-3, 0.0}, 1500);
   const double push = sc.mean_force(wall, {Mode::kVelocity, 5e-3, 0.0}, 1500);
-  const double pull_capstan = -CapstanScene::kTipLoad * std::exp(mu * CapstanScene::kAngle);
-  const double push_capstan = -CapstanScene::kTipLoad * std::exp(-mu * CapstanScene::kAngle);
-  EXPECT_NEAR(pull, pull_capstan, 0.02 * std::abs(pull_capstan));
-  EXPECT_NEAR(push, push_capstan, 0.02 * std::abs(push_capstan));
+  expect_capstan(mu, CapstanScene::kTipLoad, pull, push);
   EXPECT_GT(in.state.x.back().x(), 15e-3) << "the tip stayed past the bend";
 }
 
-INSTANTIATE_TEST_SUITE_P(MuAndDefinition, Capstan,
-                         ::testing::Combine(::testing::Values(0.0, 0.1, 0.3),
-                                            ::testing::Values(HandForce::kImpulses,
-                                                              HandForce::kQuasiStatic)),
-                         [](const auto& p) {
-                           const int mu = static_cast<int>(std::lround(std::get<0>(p.param) * 10));
-                           return std::string(std::get<1>(p.param) == HandForce::kImpulses
-                                                  ? "Impulses"
-                                                  : "QuasiStatic") +
-                                  "Mu0" + std::to_string(mu);
-                         });
+INSTANTIATE_TEST_SUITE_P(MuAndDefinition, Capstan, kMuAndDefinition, param_name);
 
 namespace {
 
@@ -134,16 +151,14 @@ struct LumenCapstanScene {
     s.hand_force = hand_force;
   }
   double mean_wire_force(StaticWall& wall, const std::array<DriveCommand, 2>& c, int steps) {
-    double sum = 0.0;
-    for (int k = 0; k < steps; ++k) {
+    return mean_of_second_half(steps, [&] {
       step_instruments(insts, couplings, &wall, s, c);
-      if (2 * k >= steps) sum += insts[0].drive.axial_force;
-    }
-    return sum / (steps - steps / 2);
+      return insts[0].drive.axial_force;
+    });
   }
 };
 
-class LumenCapstan : public ::testing::TestWithParam<std::tuple<double, HandForce>> {};
+class LumenCapstan : public ::testing::TestWithParam<Params> {};
 
 }  // namespace
 
@@ -165,20 +180,7 @@ TEST_P(LumenCapstan, WireInACatheterFollowsTheCapstanEquation) {
       sc.mean_wire_force(wall, {DriveCommand{Mode::kVelocity, -5e-3, 0.0}, hold}, 1500);
   const double push =
       sc.mean_wire_force(wall, {DriveCommand{Mode::kVelocity, 5e-3, 0.0}, hold}, 1500);
-  const double pull_capstan = -CapstanScene::kTipLoad * std::exp(mu * CapstanScene::kAngle);
-  const double push_capstan = -CapstanScene::kTipLoad * std::exp(-mu * CapstanScene::kAngle);
-  EXPECT_NEAR(pull, pull_capstan, 0.02 * std::abs(pull_capstan));
-  EXPECT_NEAR(push, push_capstan, 0.02 * std::abs(push_capstan));
+  expect_capstan(mu, CapstanScene::kTipLoad, pull, push);
 }
 
-INSTANTIATE_TEST_SUITE_P(MuAndDefinition, LumenCapstan,
-                         ::testing::Combine(::testing::Values(0.0, 0.1, 0.3),
-                                            ::testing::Values(HandForce::kImpulses,
-                                                              HandForce::kQuasiStatic)),
-                         [](const auto& p) {
-                           const int mu = static_cast<int>(std::lround(std::get<0>(p.param) * 10));
-                           return std::string(std::get<1>(p.param) == HandForce::kImpulses
-                                                  ? "Impulses"
-                                                  : "QuasiStatic") +
-                                  "Mu0" + std::to_string(mu);
-                         });
+INSTANTIATE_TEST_SUITE_P(MuAndDefinition, LumenCapstan, kMuAndDefinition, param_name);
