@@ -37,6 +37,13 @@ Vec6 pair_force(const RodModel& md, const RodState& st, const RodWorkspace& ws, 
   return f;
 }
 
+// [v]x, the cross-product matrix: [v]x w = v x w.
+Mat3 skew(const Vec3& v) {
+  Mat3 m;
+  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return m;
+}
+
 Vec6 pair_velocity(const RodModel& md, const RodState& st, int p) {
   Vec6 u = Vec6::Zero();
   u.head<3>() = st.v[p];
@@ -76,9 +83,7 @@ void implicit_velocities(const RodModel& md, const RodSettings& s, RodState& st,
     const Vec3 d3 = R.col(2);
     const Vec3 u = (st.x[j + 1] - st.x[j]) / l;
     const Mat3 P = Mat3::Identity() - d3 * d3.transpose();
-    Mat3 d3x;
-    d3x << 0, -d3.z(), d3.y(), d3.z(), 0, -d3.x(), -d3.y(), d3.x(), 0;
-    const Mat3 jt = (d3 * u.transpose() + u.dot(d3) * Mat3::Identity()) * d3x * R;
+    const Mat3 jt = (d3 * u.transpose() + u.dot(d3) * Mat3::Identity()) * skew(d3) * R;
     const Mat3 jx = P / l;  // d r / d x_j+1 (and minus it for x_j)
     const double w = md.kp[j] * l;
     const Mat3 hxx = w * jx.transpose() * jx;
@@ -102,9 +107,7 @@ void implicit_velocities(const RodModel& md, const RodSettings& s, RodState& st,
     const Quat& qa = k > 0 ? st.q[k - 1] : st.base_frame;
     const Quat& qb = k < m ? st.q[k] : st.tip_frame;
     const Quat r = relative_rotation(qa, qb);
-    const Vec3 rv = r.vec();
-    Mat3 rvx;
-    rvx << 0, -rv.z(), rv.y(), rv.z(), 0, -rv.x(), -rv.y(), rv.x(), 0;
+    const Mat3 rvx = skew(r.vec());
     const double lv = md.vertex_length[k];
     const Mat3 ja = -(r.w() * Mat3::Identity() - rvx) / lv;
     const Mat3 jb = (r.w() * Mat3::Identity() + rvx) / lv;
