@@ -56,7 +56,9 @@ void size_implicit(const RodModel& md, RodWorkspace& ws) {
   if (ws.imp_diag.size() == n) return;
   ws.imp_diag.assign(n, Mat6::Zero());
   ws.imp_upper.assign(n, Mat6::Zero());
-  ws.imp_llt.assign(n, Eigen::LLT<Mat6>());
+  // Constructed in place: copying an LLT that has not factored anything reads its unset state.
+  ws.imp_llt.clear();
+  ws.imp_llt.resize(n);
   ws.imp_force.assign(n, Vec6::Zero());
   ws.imp_rhs.assign(n, Vec6::Zero());
 }
