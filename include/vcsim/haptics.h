@@ -55,7 +55,6 @@ struct ForceFeedback {
 class FeedbackDecimator {
  public:
   void resize(std::size_t instruments);
-  std::size_t size() const { return n_.size(); }
   // One physics step's force (N) and torque (N m) of instrument i.
   void add(std::size_t i, double force_n, double torque_nm);
   // The means since the last take of instrument i (the last means again when nothing was added
