@@ -253,5 +253,9 @@ Vec3 darboux(const Quat& qa, const Quat& qb, double l);
 // (physics.md eqs. 2-5, the torque the step adds to frame k - 1); zero at the rod's end vertices
 // (k = 0, m: a clamp's moment is not computed here).
 Vec3 vertex_moment(const RodModel& model, const RodState& state, int k);
+// The elastic energy (J) of bending and twisting (physics.md eq. 5, l_v / 2 (Omega - Omega0)^T K
+// (Omega - Omega0) over the interior vertices) and of the parallel-constraint penalty (eq. 6,
+// K_p l / 2 |u - (u . d3) d3|^2 over the edges); the stretch penalty is not included.
+double elastic_energy(const RodModel& model, const RodState& state);
 
 }  // namespace vcsim

@@ -486,6 +486,22 @@ Vec3 vertex_moment(const RodModel& md, const RodState& st, int k) {
   return on_a;
 }
 
+double elastic_energy(const RodModel& md, const RodState& st) {
+  double e = 0.0;
+  for (int k = 1; k < md.m; ++k) {
+    if (!md.vertex_active[k]) continue;
+    const Vec3 w = darboux(st.q[k - 1], st.q[k], md.vertex_length[k]) - md.rest_darboux[k];
+    e += 0.5 * md.vertex_length[k] * w.dot(md.vertex_stiffness[k].cwiseProduct(w));
+  }
+  for (int j = 0; j < md.m; ++j) {
+    const double l = md.rest_length[j];
+    const Vec3 u = (st.x[j + 1] - st.x[j]) / l;
+    const Vec3 d3 = st.q[j] * Vec3::UnitZ();
+    e += 0.5 * md.kp[j] * l * (u - u.dot(d3) * d3).squaredNorm();
+  }
+  return e;
+}
+
 double scale_for_time_step(RodModel& md, double dt, double kp_ratio) {
   for (int j = 0; j < md.m; ++j) {
     const double l = md.rest_length[j];

@@ -150,3 +150,37 @@ TEST(RodInvariants, BadSettingsNameTheField) {
   EXPECT_THROW(distance_method_from_string("newton", "x"), InputError);
   EXPECT_EQ(distance_method_from_string("local-jacobi", "x"), DistanceMethod::kLocalJacobi);
 }
+
+// The elastic energy diagnostic: a straight rod laid on a circular arc, frame j turned by j theta
+// about d1 and each edge along its d3, stores the bending energy of its discrete curvature,
+// sum over the interior vertices of l / 2 EI (2 sin(theta / 2) / l)^2 (physics.md eq. 5, the
+// quaternion Darboux vector), and nothing in the parallel penalty; twisted instead, the twist
+// energy with G J.
+TEST(RodInvariants, ElasticEnergyOfABentAndOfATwistedRod) {
+  RodDef def = wire();
+  def.tip_shape.clear();
+  def.base_orientation = Quat::Identity();
+  const RodModel md = build_rod(def);
+  RodState st = make_state(md, def);
+  EXPECT_NEAR(elastic_energy(md, st), 0.0, 1e-15) << "straight at rest";
+  const double l = md.rest_length[0];
+  const double theta = 0.02;  // rad per edge: 0.2 m^-1 of curvature over the 0.1 m
+  Vec3 x = Vec3::Zero();
+  for (int j = 0; j < md.m; ++j) {
+    st.q[j] = Quat(Eigen::AngleAxisd(j * theta, Vec3::UnitX()));
+    st.x[j] = x;
+    x += l * (st.q[j] * Vec3::UnitZ());
+  }
+  st.x[md.m] = x;
+  const double ei = md.vertex_stiffness[1].x();
+  const double omega = 2.0 * std::sin(0.5 * theta) / l;
+  EXPECT_NEAR(elastic_energy(md, st), (md.m - 1) * 0.5 * l * ei * omega * omega,
+              1e-9 * (md.m - 1) * 0.5 * l * ei * omega * omega);
+  // Twisted about the straight axis: frame j turned by j theta about d3.
+  RodState tw = make_state(md, def);
+  for (int j = 0; j < md.m; ++j)
+    tw.q[j] = tw.q[j] * Quat(Eigen::AngleAxisd(j * theta, Vec3::UnitZ()));
+  const double gj = md.vertex_stiffness[1].z();
+  EXPECT_NEAR(elastic_energy(md, tw), (md.m - 1) * 0.5 * l * gj * omega * omega,
+              1e-9 * (md.m - 1) * 0.5 * l * gj * omega * omega);
+}
