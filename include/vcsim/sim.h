@@ -34,6 +34,7 @@ struct ScenarioInstrument {
   std::string name;             // the name timelines, landmarks and the autopilot use ("catheter")
   std::string catalogue;        // catalogue entry ("catheter-jl4-6f")
   std::string inside;           // name of the instrument whose lumen holds this one, "" for none
+  bool rim = true;              // with `inside`: its edges leaving that lumen wrap round its rim
   int max_nodes = 256;          // at most 512
   double tip_segment = 1.0e-3;  // m, most distal segment
 };
@@ -136,6 +137,9 @@ struct Scenario {
   MotionSettings motion;
   double dt = 1e-3;          // s, physics step (1 kHz or faster)
   double time_limit = 60.0;  // s of simulated time before the run ends unfinished
+  // The introducer sheath's straight part inside the vessel from the access point (m; 0: none),
+  // its lumen 0.2 mm wider than the widest instrument (physics.md 6.4).
+  double sheath_length = 25e-3;
   std::vector<ScenarioInstrument> instruments;
   std::string timeline;  // timeline file (relative to the scenario's folder); "" = autopilot
   std::vector<AutopilotPhase> autopilot;

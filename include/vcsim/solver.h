@@ -74,6 +74,11 @@ struct Sheath {
   Quat frame = Quat::Identity();
   double max_speed = 0.5;  // m/s: translation rate limit (a tracked device cannot jump)
   double max_spin = 30.0;  // rad/s: rotation rate limit
+  // The introducer sheath's straight tube inside the body, from the access point along the axis:
+  // its length (0: none) and lumen radius (m). Free nodes inside it are held within its lumen
+  // (physics.md 6.4) instead of meeting the vessel wall.
+  double length = 0.0;
+  double inner_radius = 0.0;
 };
 
 // What the hand does at the sheath this step.
@@ -137,6 +142,7 @@ struct Instrument {
   std::vector<Vec3> felt_load;       // (n)
   std::vector<int> wall_contact_of;  // (n)
   std::vector<int> coupling_of;      // (n)
+  std::vector<int> rim_of;           // (n) the rim contact of the edge from node i (-1: none)
   double wall_travel = 0.0;          // wall motion bound accumulated since the queries
   std::array<double, 3> stage_us{};  // profile scratch: this instrument's stage times (us)
 };
@@ -193,6 +199,9 @@ struct CoaxialContact {
   double excess = 0.0;         // radial offset beyond the clearance (> 0 violated, < 0 gap), m
   double lambda_n = 0.0;
   Vec3 lambda_t = Vec3::Zero();
+  // The inner point: node + a (node + 1 - node). Above 0 only for a rim contact: the inner rod's
+  // edge leaving through the outer one's distal end, against its rim (outer node segment + 1).
+  double a = 0.0;
 };
 
 // An inner instrument (wire) running in the lumen of an outer one (catheter). Both enter through
@@ -203,7 +212,10 @@ struct CoaxialContact {
 struct Coupling {
   int inner = 0;
   int outer = 1;
-  double mu = 0.04;                      // wire-in-catheter lumen friction (clinical.md)
+  double mu = 0.04;  // wire-in-catheter lumen friction (clinical.md)
+  // The edges that leave through the outer instrument's distal opening pass inside its rim and
+  // wrap round it (physics.md 6.3); false: only the nodes are held (VCSim3's constraints).
+  bool rim = true;
   std::vector<CoaxialContact> contacts;  // scratch, capacity = inner nodes
   double clearance = 0.0;                // m, set by step_instruments
 };

@@ -104,6 +104,7 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   }
   sc.dt = f.in_range_or("dt_ms", 0.0, 1.0, 1.0) * 1e-3;
   sc.time_limit = f.in_range_or("time_limit_s", 0.0, 3600.0, 60.0);
+  sc.sheath_length = f.in_range_or("sheath_length_mm", 0.0, 300.0, 25.0) * kMm;
 
   const Json& insts = f.array("instruments");
   if (insts.empty()) f.fail("instruments", "expected at least one instrument");
@@ -113,6 +114,11 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
     si.name = g.text("name");
     si.catalogue = g.text("catalogue");
     si.inside = g.text_or("inside", "");
+    if (g.has("rim")) {
+      if (si.inside.empty())
+        g.fail("rim", "expected only with \"inside\" (the outer instrument's rim)");
+      si.rim = g.boolean_or("rim", true);
+    }
     si.max_nodes = g.integer_or("max_nodes", 16, 512, 256);
     si.tip_segment = g.in_range_or("tip_segment_mm", 0.1, 20.0, 1.0) * kMm;
     g.finish();

@@ -134,6 +134,12 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
   sheath.access_point = point_at(acc, tree_.access.distance);
   const Vec3 axis = -tangent_at(acc, tree_.access.distance);
   sheath.frame = Quat::FromTwoVectors(Vec3::UnitZ(), axis).normalized();
+  // The introducer sheath: its straight part in the femoral artery holds what passes through it
+  // on the axis (a 6F sheath for a 6F catheter: 0.2 mm of play across).
+  sheath.length = sc_.sheath_length;
+  double widest = 0.0;
+  for (const InstrumentSpec& sp : specs_) widest = std::max(widest, sp.outer_diameter);
+  sheath.inner_radius = 0.5 * widest + 0.1e-3;
 
   SolverSettings& s = settings_;
   s.rod.dt = sc_.dt;
@@ -162,6 +168,7 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
     c.inner = static_cast<int>(i);
     c.outer = o;
     c.mu = specs_[i].friction.lumen;
+    c.rim = sc_.instruments[i].rim;
     c.contacts.reserve(insts_[i].model.n);
     couplings_.push_back(std::move(c));
   }

@@ -60,6 +60,48 @@ Vec3 impulse_loads(const Instrument& in, const SolverSettings& set, bool coupled
   return f;
 }
 
+// The reactions s_k >= 0 along d_k (k < n, n <= 2) that leave r + sum s_k d_k closest to the
+// edge's direction t: least squares of |r_perp + sum s_k d_k,perp|^2, leaning by
+// kIndeterminateWeight on each contact's own reaction where d lies along the edge (a dead end's
+// cap) and the shape cannot decide.
+template <class Candidates>
+void solve_reactions(const Vec3& r_perp, const Vec3& t, const Candidates& c, int n,
+                     std::array<double, 2>& s) {
+  constexpr double w = kIndeterminateWeight;
+  std::array<Vec3, 2> dp;
+  for (int k = 0; k < n; ++k) dp[k] = c[k].d - c[k].d.dot(t) * t;
+  // One reaction alone (the other held at zero).
+  auto single = [&](int k) {
+    return std::max(0.0, (w * c[k].heavy - r_perp.dot(dp[k])) / (dp[k].squaredNorm() + w));
+  };
+  if (n == 1) {
+    s[0] = single(0);
+    return;
+  }
+  // Both: the 2 x 2 normal equations; if either comes out negative, the better of the two alone.
+  const double a00 = dp[0].squaredNorm() + w, a11 = dp[1].squaredNorm() + w;
+  const double a01 = dp[0].dot(dp[1]);
+  const double b0 = w * c[0].heavy - r_perp.dot(dp[0]), b1 = w * c[1].heavy - r_perp.dot(dp[1]);
+  const double det = a00 * a11 - a01 * a01;
+  if (det > 0.0) {
+    const double s0 = (b0 * a11 - b1 * a01) / det, s1 = (a00 * b1 - a01 * b0) / det;
+    if (s0 >= 0.0 && s1 >= 0.0) {
+      s = {s0, s1};
+      return;
+    }
+  }
+  auto cost = [&](double s0, double s1) {
+    return (r_perp + s0 * dp[0] + s1 * dp[1]).squaredNorm() +
+           w * ((s0 - c[0].heavy) * (s0 - c[0].heavy) + (s1 - c[1].heavy) * (s1 - c[1].heavy));
+  };
+  const double only0 = single(0), only1 = single(1);
+  if (cost(only0, 0.0) <= cost(0.0, only1)) {
+    s = {only0, 0.0};
+  } else {
+    s = {0.0, only1};
+  }
+}
+
 // The reactions a rod of negligible mass would need in this step's shape, walked from the tip to
 // the hand (physics.md 6.1, "the quasi-static hand force"). Edge j's internal force on its first
 // node is Q_j = T_j t_j + P_j: a tension along the edge and the parallel penalty's shear P_j, which
@@ -80,40 +122,52 @@ Vec3 quasi_static_force(Instrument& in, const Coupling* cp, Instrument* outer,
   for (int k = 0; k < static_cast<int>(in.contacts.size()); ++k)
     in.wall_contact_of[in.contacts[k].node] = k;
   std::fill(in.coupling_of.begin(), in.coupling_of.end(), -1);
+  std::fill(in.rim_of.begin(), in.rim_of.end(), -1);
   if (cp)
     for (int k = 0; k < static_cast<int>(cp->contacts.size()); ++k)
-      in.coupling_of[cp->contacts[k].node] = k;
-  // The reaction of node i's wall contact or lumen contact as a direction d and the step's own
-  // normal reaction (N); false if the node has none.
-  auto reaction_of = [&](int i, Vec3& d, double& heavy, const CoaxialContact*& cc) {
-    Vec3 n, v_rel;
-    double mu = 0.0;
-    cc = nullptr;
+      (cp->contacts[k].a > 0.0 ? in.rim_of : in.coupling_of)[cp->contacts[k].node] = k;
+  // A reaction candidate: direction d (the normal less mu times the regularised sliding
+  // direction), the step's own normal reaction (N), and the lumen or rim contact it belongs to.
+  struct Candidate {
+    Vec3 d;
+    double heavy;
+    const CoaxialContact* cc;
+  };
+  auto make = [&](const Vec3& n, const Vec3& v_rel, double mu, double heavy,
+                  const CoaxialContact* cc) {
+    const Vec3 vt = v_rel - v_rel.dot(n) * n;
+    return Candidate{n - (mu / std::max(vt.norm(), kSlipSpeed)) * vt, heavy, cc};
+  };
+  // A lumen or rim contact; false for a gap the step did not close.
+  auto coaxial = [&](const CoaxialContact& c, Candidate& out) {
+    if (c.lambda_n <= 0.0) return false;
+    Vec3 v_in = st.v[c.node];
+    if (c.a > 0.0) v_in = (1 - c.a) * v_in + c.a * st.v[c.node + 1];
+    const Vec3 v_out = (1 - c.t) * outer->state.v[c.segment] + c.t * outer->state.v[c.segment + 1];
+    // The catheter pushes the wire back toward its centreline (or off its rim).
+    out = make(-c.normal, v_in - v_out, cp->mu, c.lambda_n / dt, &c);
+    return true;
+  };
+  // Node i's reactions: its wall or lumen contact, and the rim's where edge i leaves the outer
+  // instrument (all of the rim's reaction lies beyond edge i - 1, so node i's balance decides it).
+  auto candidates_of = [&](int i, std::array<Candidate, 2>& out) {
+    int k = 0;
     if (const int w = in.wall_contact_of[i]; w >= 0) {
       const NodeContact& c = in.contacts[w];
-      if (c.lambda_n <= 0.0 && c.depth <= 0.0) return false;  // a gap the step did not close
-      n = c.normal;
-      v_rel = st.v[i] - c.wall_velocity;
-      mu = in.contact.mu_dynamic;
-      heavy = (c.lambda_n - c.lambda_bias) / dt;
-    } else if (const int k = in.coupling_of[i]; k >= 0) {
-      cc = &cp->contacts[k];
-      if (cc->lambda_n <= 0.0) return false;
-      n = -cc->normal;  // the catheter pushes the wire back toward its centreline
-      v_rel = st.v[i] -
-              ((1 - cc->t) * outer->state.v[cc->segment] + cc->t * outer->state.v[cc->segment + 1]);
-      mu = cp->mu;
-      heavy = cc->lambda_n / dt;
-    } else {
-      return false;
+      if (c.lambda_n > 0.0 || c.depth > 0.0)
+        out[k++] = make(c.normal, st.v[i] - c.wall_velocity, in.contact.mu_dynamic,
+                        (c.lambda_n - c.lambda_bias) / dt, nullptr);
+    } else if (const int c = in.coupling_of[i]; c >= 0 && coaxial(cp->contacts[c], out[k])) {
+      ++k;
     }
-    const Vec3 vt = v_rel - v_rel.dot(n) * n;
-    d = n - (mu / std::max(vt.norm(), kSlipSpeed)) * vt;
-    return true;
+    if (const int r = in.rim_of[i]; r >= 0 && coaxial(cp->contacts[r], out[k])) ++k;
+    return k;
   };
   Vec3 q = Vec3::Zero();  // Q_i: the internal force of the edge distal to node i (none at the tip)
   const int first = std::max(1, in.drive.first_free);
   Vec3 g = vertex_moment(md, st, md.n - 1);  // G at the distal vertex of edge i - 1
+  std::array<Candidate, 2> cand;
+  std::array<double, 2> s{};
   for (int i = md.n - 1; i >= first; --i) {
     q += st.f_ext[i] + md.node_mass[i] * set.rod.gravity + in.felt_load[i];
     const Vec3 e = st.x[i] - st.x[i - 1];
@@ -124,29 +178,24 @@ Vec3 quasi_static_force(Instrument& in, const Coupling* cp, Instrument* outer,
     }
     const Vec3 t = e / len;
     const Vec3 shear = equilibrium_shear(md, st, i - 1, t, len, g);
-    Vec3 d;
-    double heavy = 0.0;
-    const CoaxialContact* cc = nullptr;
-    if (!reaction_of(i, d, heavy, cc)) continue;
-    double s = heavy;
+    const int nc = candidates_of(i, cand);
+    if (nc == 0) continue;
     if (std::abs(len / md.rest_length[i - 1] - 1.0) > kMaxStrain) {
-      // A violated edge: its direction is not a rod's. A lumen reaction there is the coupling
-      // repairing the violation, a position fix-up that is not felt (as before, c_fix); a wall
-      // keeps the step's own reaction (a crammed dead end must still be felt).
-      if (cc) continue;
+      // A violated edge: its direction is not a rod's. A lumen or rim reaction there is the
+      // coupling repairing the violation, a position fix-up that is not felt (as before, c_fix);
+      // a wall keeps the step's own reaction (a crammed dead end must still be felt).
+      for (int k = 0; k < nc; ++k) s[k] = cand[k].cc ? 0.0 : cand[k].heavy;
     } else {
       const Vec3 r_perp = (q - shear) - (q - shear).dot(t) * t;
-      const Vec3 d_perp = d - d.dot(t) * t;
-      // Least squares of |r_perp + s d_perp|, leaning on the step's own N where d lies along the
-      // edge (a dead end's cap) and the shape cannot decide.
-      s = std::max(0.0, (kIndeterminateWeight * heavy - r_perp.dot(d_perp)) /
-                            (d_perp.squaredNorm() + kIndeterminateWeight));
+      solve_reactions(r_perp, t, cand, nc, s);
     }
-    const Vec3 reaction = s * d;
-    q += reaction;
-    if (cc) {
-      outer->felt_load[cc->segment] -= (1 - cc->t) * reaction;
-      outer->felt_load[cc->segment + 1] -= cc->t * reaction;
+    for (int k = 0; k < nc; ++k) {
+      const Vec3 reaction = s[k] * cand[k].d;
+      q += reaction;
+      if (const CoaxialContact* cc = cand[k].cc) {
+        outer->felt_load[cc->segment] -= (1 - cc->t) * reaction;
+        outer->felt_load[cc->segment + 1] -= cc->t * reaction;
+      }
     }
   }
   // Reactions of inner instruments on the held part (a wire near the access point).

@@ -84,6 +84,36 @@ void drive_end(Instrument& inst) {
 
 // --- contacts ------------------------------------------------------------------------------------
 
+// True for a free node inside the introducer sheath (Sheath::length of inserted arc length).
+bool in_sheath(const Instrument& inst, int i) {
+  return inst.driven &&
+         inst.model.node_s[i] - (inst.model.length - inst.drive.depth) <= inst.sheath.length;
+}
+
+// The introducer sheath (physics.md 6.4): a straight tube on the axis from the access point. Its
+// lumen holds the free nodes inside it like a wall (with the instrument's vessel friction); they
+// meet neither the vessel wall nor, through it, the tissue around the puncture. Without it the
+// first free node is held only by the vessel, and a catheter loaded from its tip (a J wire pulled
+// back into it) folds there, at the access point.
+void add_sheath_contacts(Instrument& inst, const SolverSettings& set) {
+  const Sheath& sh = inst.sheath;
+  if (sh.length <= 0.0 || !inst.driven) return;
+  const RodModel& md = inst.model;
+  const RodState& st = inst.state;
+  const Vec3 axis = sh.frame * Vec3::UnitZ();
+  for (int i = inst.drive.first_free; i < md.n && in_sheath(inst, i); ++i) {
+    if (inst.ws.inv_mass[i] == 0.0 || inst.sheathed[i]) continue;
+    const Vec3 rel = st.x[i] - sh.access_point;
+    const Vec3 radial = rel - rel.dot(axis) * axis;
+    const double rho = radial.norm();
+    if (rho < 1e-12) continue;  // on the axis: the wall is a lumen radius away all round
+    const double depth = node_radius(md, i) - (sh.inner_radius - rho);
+    const double reach = set.contact_margin + st.v[i].norm() * set.rod.dt;
+    if (depth > -reach)
+      inst.contacts.push_back({i, -radial / rho, depth, 0.0, Vec3::Zero(), Vec3::Zero()});
+  }
+}
+
 // Finds the contacts of the free nodes. A node is queried with a radius reaching
 // coherence_margin beyond its contact reach; if that finds no wall, the node is skipped until it
 // (or the wall) has moved far enough to close the gap.
@@ -97,7 +127,7 @@ void detect_contacts(Instrument& inst, VesselWall& wall, const SolverSettings& s
   inst.wall_travel += wall.speed_bound() * dt;
   const int first = inst.driven ? inst.drive.first_free : 0;
   for (int i = first; i < md.n; ++i) {
-    if (inst.ws.inv_mass[i] == 0.0 || inst.sheathed[i]) continue;
+    if (inst.ws.inv_mass[i] == 0.0 || inst.sheathed[i] || in_sheath(inst, i)) continue;
     const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt;
     if (inst.clearance[i] > 0.0) {
       const double moved = (st.x[i] - inst.query_centre[i]).norm() + inst.wall_travel;
@@ -188,6 +218,8 @@ void remove_contact_bias(Instrument& inst, const SolverSettings& set) {
 
 // --- coaxial coupling ---------------------------------------------------------------------------
 
+constexpr double kPairWindow = 0.03;  // m of arc length searched either way (offset_from_outer)
+
 // Closest point on the outer instrument's edge k to p: parameter t in [0, 1] and squared
 // distance.
 double project_on_edge(const RodState& outer, int k, const Vec3& p, double& t) {
@@ -203,8 +235,10 @@ double project_on_edge(const RodState& outer, int k, const Vec3& p, double& t) {
 // the inside of a bend, and an edge whose projection is clamped at its end would pin the node to
 // that vertex along the axis instead of holding it radially. The offset is perpendicular to the
 // edge inside it, toward the vertex where the projection is clamped (at a polyline bend).
-Vec3 offset_from_outer(const RodState& out, int m, int k, const Vec3& p, int& best,
-                       double& best_t) {
+Vec3 offset_from_outer(const Instrument& outer, int k, const Vec3& p, int& best, double& best_t) {
+  const RodState& out = outer.state;
+  const RodModel& mo = outer.model;
+  const int m = mo.m;
   double t = 0.0;
   best = k;
   double best_d2 = project_on_edge(out, k, p, best_t);
@@ -215,6 +249,30 @@ Vec3 offset_from_outer(const RodState& out, int m, int k, const Vec3& p, int& be
       best_d2 = d2;
       best = kk;
       best_t = t;
+    }
+  }
+  // Not within the lumen there: the walk stopped at a local minimum of the distance, which a
+  // catheter folded or bunched up near the access (its arc length centimetres off the wire's) can
+  // leave far from the edge the node lies in. The nearest edge within kPairWindow of arc length
+  // either way decides; without this the coupling would drag the node across to the wrong part.
+  const double lumen = mo.inner_radius[best];
+  if (best_d2 > lumen * lumen) {
+    const double s0 = mo.edge_s[k];
+    for (int kk = k; kk >= 0 && s0 - mo.edge_s[kk] <= kPairWindow; --kk) {
+      const double d2 = project_on_edge(out, kk, p, t);
+      if (d2 < best_d2) {
+        best_d2 = d2;
+        best = kk;
+        best_t = t;
+      }
+    }
+    for (int kk = k + 1; kk < m && mo.edge_s[kk] - s0 <= kPairWindow; ++kk) {
+      const double d2 = project_on_edge(out, kk, p, t);
+      if (d2 < best_d2) {
+        best_d2 = d2;
+        best = kk;
+        best_t = t;
+      }
     }
   }
   const Vec3& a = out.x[best];
@@ -231,8 +289,11 @@ bool beyond_tip(const RodModel& outer, int best, double t) {
   return best == outer.m - 1 && t >= 1.0;
 }
 
-// Calls f(i, k) for every free inner node i inside the outer instrument's inserted length, with
-// k the outer edge at the same inserted arc length.
+// Calls f(i, k, past) for every free inner node i inside the outer instrument's inserted length,
+// with k the outer edge at the same inserted arc length, and for the next ones within
+// kMouthSlack beyond it (past = true): on the outside of the curves the wire's path is longer than
+// the catheter's centreline, so such a node can already lie inside the lumen.
+constexpr double kMouthSlack = 3e-3;
 template <class F>
 void for_each_sheathed(const Instrument& in, const Instrument& out, F&& f) {
   const RodModel& mi = in.model;
@@ -242,10 +303,64 @@ void for_each_sheathed(const Instrument& in, const Instrument& out, F&& f) {
   int k = 0;
   for (int i = in.drive.first_free; i < mi.n; ++i) {
     const double sigma = mi.node_s[i] - in_offset;  // inserted arc length of this node
-    if (sigma <= 0.0 || sigma > out.drive.depth) continue;
-    const double s_out = sigma + out_offset;
+    if (sigma <= 0.0 || sigma > out.drive.depth + kMouthSlack) continue;
+    const double s_out = std::min(sigma + out_offset, mo.length);
     while (k + 1 < mo.m && mo.node_s[k + 1] <= s_out) ++k;
-    f(i, k);
+    f(i, k, sigma > out.drive.depth);
+  }
+}
+
+constexpr int kRimEdges = 3;
+
+// The rim: the inner rod leaves the outer one through its distal opening, so the edge from the
+// last sheathed node to the next must pass inside the rim (the ring of the lumen's radius R at the
+// outer tip) and wrap round it at no less than its own radius r_w. Node constraints alone let that
+// edge cut through the tip's wall: a shaped wire tip pulled back in then enters node by node, each
+// node snapping from outside into the lumen, a jump of the shape and of the force at the hand in
+// each (physics.md 6.3). The contact point slides along the edge as the wire does, so the
+// constraint and its reaction change continuously. In the plane of the axis and the edge's far
+// node, with L the rim point on that side and p the edge's point nearest L, the gap is
+// sd - r_w with sd = +-|p - L|, + when L lies on the wall's side of the edge (the wire passes in
+// front of the rim), - when the edge cuts through the wall.
+void add_rim_contact(Coupling& cp, const Instrument& in, const Instrument& out,
+                     const SolverSettings& set) {
+  if (!cp.rim) return;
+  const RodModel& mi = in.model;
+  const RodModel& mo = out.model;
+  int i = mi.n - 2;
+  while (i >= in.drive.first_free && !(in.sheathed[i] && !in.sheathed[i + 1])) --i;
+  if (i < in.drive.first_free) return;
+  const Vec3& tip = out.state.x[mo.n - 1];
+  const Vec3 axis = (tip - out.state.x[mo.n - 2]).normalized();
+  const double rim = mo.inner_radius[mo.m - 1];
+  // The edges that leave the lumen and wrap round the rim: a wire edge is shorter than the wrap
+  // of a 3 mm J tip round the rim, so it takes up to three.
+  for (int j = i; j < std::min(i + kRimEdges, mi.n - 1); ++j) {
+    const Vec3& x0 = in.state.x[j];
+    const Vec3& x1 = in.state.x[j + 1];
+    const Vec3 r1 = (x1 - tip) - (x1 - tip).dot(axis) * axis;
+    if (r1.norm() < 1e-12) continue;  // straight out along the axis: far from the rim all round
+    const Vec3 u = r1.normalized();
+    const Vec3 lip = tip + rim * u;
+    const Vec3 e = x1 - x0;
+    const double a = std::clamp((lip - x0).dot(e) / e.squaredNorm(), 0.0, 1.0);
+    if (a <= 0.0) continue;  // nearest at the edge's first node: that node's own constraint
+    const Vec3 away = x0 + a * e - lip;  // from the rim point to the edge
+    const double dist = away.norm();
+    if (dist < 1e-12) continue;
+    // Side: in the (axis, u) plane the wire runs outward along the edge; the rim point must lie
+    // to the wall's side of it, cross(edge, lip - x0) > 0 in (h, rho) coordinates.
+    const double eh = e.dot(axis), er = e.dot(u);
+    const double lh = (lip - x0).dot(axis), lr = (lip - x0).dot(u);
+    const bool in_front = eh * lr - er * lh > 0.0;
+    const double r_w = mi.outer_radius[j];
+    if (!in_front && dist > r_w) continue;  // not a shallow cut: far from the rim, or past it
+    const double sd = in_front ? dist : -dist;
+    const Vec3 normal = in_front ? Vec3(-away / dist) : Vec3(away / dist);  // toward the rim
+    const double excess = r_w - sd;
+    const Vec3 rel_v = (1 - a) * in.state.v[j] + a * in.state.v[j + 1] - out.state.v[mo.n - 1];
+    if (excess < -(set.contact_margin + rel_v.norm() * set.rod.dt)) continue;
+    cp.contacts.push_back({j, mo.m - 1, 1.0, normal, excess, 0.0, Vec3::Zero(), a});
   }
 }
 
@@ -259,19 +374,22 @@ void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
   const RodModel& mo = out.model;
   cp.clearance = std::max(0.0, mo.inner_radius[mo.m - 1] - in.model.outer_radius[0]);
   const double dt = set.rod.dt;
-  for_each_sheathed(in, out, [&](int i, int k) {
+  for_each_sheathed(in, out, [&](int i, int k, bool past) {
     int best = k;
     double t = 0.0;
-    const Vec3 off = offset_from_outer(out.state, mo.m, k, in.state.x[i], best, t);
+    const Vec3 off = offset_from_outer(out, k, in.state.x[i], best, t);
     if (beyond_tip(mo, best, t)) return;  // outside: the wall's
-    in.sheathed[i] = 1;
     const double r = off.norm();
+    // Past the inserted length: inside only where it lies in the lumen, next to a node inside.
+    if (past && (!in.sheathed[i - 1] || r > mo.inner_radius[best])) return;
+    in.sheathed[i] = 1;
     if (r < 1e-12) return;
     const Vec3 rel_v = in.state.v[i] - ((1 - t) * out.state.v[best] + t * out.state.v[best + 1]);
     const double excess = r - cp.clearance;
     if (excess < -(set.contact_margin + rel_v.norm() * dt)) return;
     cp.contacts.push_back({i, best, t, off / r, excess, 0.0, Vec3::Zero()});
   });
+  add_rim_contact(cp, in, out, set);
 }
 
 // After the positions: moves every sheathed inner node that ended the step beyond the clearance
@@ -282,27 +400,49 @@ void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
 // here, so one pass is exact; the velocities are left alone (the next step's constraint sees a node
 // at the clearance).
 void project_coupling(const Coupling& cp, Instrument& in, const Instrument& out) {
-  for_each_sheathed(in, out, [&](int i, int k) {
+  for_each_sheathed(in, out, [&](int i, int k, bool) {
+    if (!in.sheathed[i]) return;
     int best = k;
     double t = 0.0;
-    const Vec3 off = offset_from_outer(out.state, out.model.m, k, in.state.x[i], best, t);
+    const Vec3 off = offset_from_outer(out, k, in.state.x[i], best, t);
     if (beyond_tip(out.model, best, t)) return;  // left through the tip
     const double r = off.norm();
     if (r > cp.clearance) in.state.x[i] -= ((r - cp.clearance) / r) * off;
   });
 }
 
-// A concentric contact's inverse masses: the inner node's, the outer edge's two nodes' weighted by
-// their shares (1 - t, t), and k, the inverse of the contact's effective mass.
+// A concentric contact's inverse masses: the inner point's two nodes' weighted by their shares
+// (1 - a, a), the outer edge's two nodes' by theirs (1 - t, t), and k, the inverse of the
+// contact's effective mass.
 struct CouplingWeights {
-  double wp, wa, wb, k;
+  double w0, w1, wa, wb, k;
 };
 CouplingWeights coupling_weights(const CoaxialContact& c, const Instrument& in,
                                  const Instrument& out) {
-  const double wp = in.ws.inv_mass[c.node];
+  const double w0 = in.ws.inv_mass[c.node] * (1 - c.a);
+  const double w1 = c.a > 0.0 ? in.ws.inv_mass[c.node + 1] * c.a : 0.0;
   const double wa = out.ws.inv_mass[c.segment] * (1 - c.t);
   const double wb = out.ws.inv_mass[c.segment + 1] * c.t;
-  return {wp, wa, wb, wp + (1 - c.t) * wa + c.t * wb};
+  return {w0, w1, wa, wb, (1 - c.a) * w0 + c.a * w1 + (1 - c.t) * wa + c.t * wb};
+}
+
+// The inner point's velocity, and the outer centreline's where it faces it.
+Vec3 inner_velocity(const CoaxialContact& c, const Instrument& in) {
+  const Vec3& v0 = in.state.v[c.node];
+  return c.a > 0.0 ? Vec3((1 - c.a) * v0 + c.a * in.state.v[c.node + 1]) : v0;
+}
+Vec3 outer_velocity(const CoaxialContact& c, const Instrument& out) {
+  return (1 - c.t) * out.state.v[c.segment] + c.t * out.state.v[c.segment + 1];
+}
+
+// Adds an impulse at the contact's inner point to Instrument::coupling_impulse, its reaction at
+// the outer point.
+void add_coupling_impulse(const CoaxialContact& c, Instrument& in, Instrument& out,
+                          const Vec3& impulse) {
+  in.coupling_impulse[c.node] += (1 - c.a) * impulse;
+  if (c.a > 0.0) in.coupling_impulse[c.node + 1] += c.a * impulse;
+  out.coupling_impulse[c.segment] -= (1 - c.t) * impulse;
+  out.coupling_impulse[c.segment + 1] -= c.t * impulse;
 }
 
 // One projected Gauss-Seidel sweep over the concentric constraints: the inner node may not move
@@ -310,31 +450,30 @@ CouplingWeights coupling_weights(const CoaxialContact& c, const Instrument& in,
 void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverSettings& set) {
   const double dt = set.rod.dt;
   for (CoaxialContact& c : cp.contacts) {
-    const auto [wp, wa, wb, k] = coupling_weights(c, in, out);
+    const auto [w0, w1, wa, wb, k] = coupling_weights(c, in, out);
     if (k == 0.0) continue;
-    Vec3& vp = in.state.v[c.node];
-    Vec3& va = out.state.v[c.segment];
-    Vec3& vb = out.state.v[c.segment + 1];
-    auto apply = [&](const Vec3& impulse) {  // impulse on the inner node, reaction on the outer
-      vp += wp * impulse;
-      va -= wa * impulse;
-      vb -= wb * impulse;
-      in.ws.node_impulse[c.node] += impulse;
+    auto apply = [&](const Vec3& impulse) {  // impulse on the inner point, reaction on the outer
+      in.state.v[c.node] += w0 * impulse;
+      in.ws.node_impulse[c.node] += (1 - c.a) * impulse;
+      if (c.a > 0.0) {
+        in.state.v[c.node + 1] += w1 * impulse;
+        in.ws.node_impulse[c.node + 1] += c.a * impulse;
+      }
+      out.state.v[c.segment] -= wa * impulse;
+      out.state.v[c.segment + 1] -= wb * impulse;
       out.ws.node_impulse[c.segment] -= (1 - c.t) * impulse;
       out.ws.node_impulse[c.segment + 1] -= c.t * impulse;
-      in.coupling_impulse[c.node] += impulse;
-      out.coupling_impulse[c.segment] -= (1 - c.t) * impulse;
-      out.coupling_impulse[c.segment + 1] -= c.t * impulse;
+      add_coupling_impulse(c, in, out, impulse);
     };
     // Radial: v_rel . n <= -excess / dt: a violation is removed in full (a wire outside its
     // catheter is visible at once), a gap may close exactly.
     const double target = -c.excess / dt;
-    const Vec3 rel = vp - ((1 - c.t) * va + c.t * vb);
+    const Vec3 rel = inner_velocity(c, in) - outer_velocity(c, out);
     const double ln = std::max(0.0, c.lambda_n + (rel.dot(c.normal) - target) / k);
     apply(-(ln - c.lambda_n) * c.normal);
     c.lambda_n = ln;
     if (cp.mu <= 0.0) continue;
-    const Vec3 rel2 = vp - ((1 - c.t) * va + c.t * vb);
+    const Vec3 rel2 = inner_velocity(c, in) - outer_velocity(c, out);
     const Vec3 slip = rel2 - rel2.dot(c.normal) * c.normal;
     Vec3 lt = c.lambda_t + slip / k;
     const double lt_norm = lt.norm();
@@ -355,10 +494,7 @@ void remove_coupling_bias(const Coupling& cp, Instrument& in, Instrument& out, d
     if (k == 0.0) continue;
     // The impulse that changes the relative normal velocity by excess / dt, at most all of it.
     const double share = std::min(1.0, c.excess / (dt * k) / c.lambda_n);
-    const Vec3 bias = -share * (c.lambda_n * c.normal + c.lambda_t);  // on the inner node
-    in.coupling_impulse[c.node] -= bias;
-    out.coupling_impulse[c.segment] += (1 - c.t) * bias;
-    out.coupling_impulse[c.segment + 1] += c.t * bias;
+    add_coupling_impulse(c, in, out, share * (c.lambda_n * c.normal + c.lambda_t));
   }
 }
 
@@ -379,6 +515,7 @@ void size_scratch(Instrument& inst) {
   inst.felt_load.assign(n, Vec3::Zero());
   inst.wall_contact_of.assign(n, -1);
   inst.coupling_of.assign(n, -1);
+  inst.rim_of.assign(n, -1);
   inst.ws.resize(inst.model);
 }
 
@@ -552,6 +689,7 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
     } else {
       in.contacts.clear();
     }
+    add_sheath_contacts(in, set);
   }
   const double t4 = tick();
   // 5. block iterations: distance chains and wall contacts with friction (each instrument on its

@@ -42,6 +42,8 @@ TEST(Scenario, DefaultParses) {
   EXPECT_EQ(sc.landmarks.size(), 3u);
   EXPECT_DOUBLE_EQ(sc.fluoro.fps, 15.0);
   EXPECT_FALSE(sc.autopilot.empty());
+  EXPECT_DOUBLE_EQ(sc.sheath_length, 25e-3);
+  EXPECT_FALSE(sc.instruments[1].rim) << "the J wire's withdrawal: see docs/validation.md";
 }
 
 TEST(Scenario, UnitsAreConverted) {
@@ -97,6 +99,15 @@ TEST(Scenario, BadInputNamesTheField) {
                "motion.beating");
   // A misspelt key is named, not reported as the missing key it was meant to be.
   expect_error(edit("\"autopilot\":", "\"autopilott\":"), "autopilott");
+  // The rim belongs to the lumen an instrument runs in: refused without one, and not a number.
+  expect_error(edit("\"name\": \"wire\", ", "\"name\": \"wire\", \"rim\": true, "),
+               "instruments[0].rim");
+  expect_error(edit("\"catalogue\": \"wire-035-j3-hydrophilic\"}",
+                    "\"catalogue\": \"wire-035-j3-hydrophilic\"}, {\"name\": \"w2\", "
+                    "\"catalogue\": \"wire-014-floppy\", \"inside\": \"wire\", \"rim\": 1}"),
+               "instruments[1].rim");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"sheath_length_mm\": 400"),
+               "sheath_length_mm");
   // Duplicated names would make commands ambiguous.
   expect_error(edit("\"catalogue\": \"wire-035-j3-hydrophilic\"}",
                     "\"catalogue\": \"wire-035-j3-hydrophilic\"}, {\"name\": \"wire\", "

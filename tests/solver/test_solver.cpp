@@ -186,6 +186,45 @@ TEST(Solver, TurningAtTheHandTurnsTheTip) {
   EXPECT_NEAR(inst.drive.torque, 0.0, 1e-6) << "no friction: nothing resists once turned";
 }
 
+// The introducer sheath (physics.md 6.4): a 100 mm rod inserted 60 mm, no vessel wall, loaded
+// sideways by its (scaled) weight. The nodes within the sheath's 30 mm stay within its lumen,
+// 0.1 mm wider than the rod, while the part beyond it sags as a cantilever; without the sheath the
+// node 20 mm in sags as well.
+TEST(Solver, TheSheathHoldsWhatPassesThroughIt) {
+  auto sag_at = [](double sheath_length, double s_in) {
+    RodDef d = test_rod(0.1, 60);
+    const double dt = 1e-3;
+    d.density = scaled_density(d, dt);
+    Sheath sh;
+    sh.length = sheath_length;
+    sh.inner_radius = d.outer_radius + 0.1e-3;
+    Instrument inst = make_instrument(d, sh, ContactMaterial{0.0, 0.0}, 0.06);
+    SolverSettings s;
+    s.rod.dt = dt;
+    s.rod.drag = 20.0;
+    s.rod.gravity = Vec3(0.5, 0.0, 0.0);  // sideways, m/s^2 (the mass is scaled 10^2-fold)
+    s.collisions = false;
+    const DriveCommand c{DriveCommand::Mode::kPosition, 0.06, 0.0};
+    double worst_inside = 0.0;
+    for (int k = 0; k < 3000; ++k) {
+      instrument_step(inst, nullptr, s, c);
+      for (int i = inst.drive.first_free; i < inst.model.n; ++i)
+        if (inst.model.node_s[i] - (inst.model.length - inst.drive.depth) <= sheath_length)
+          worst_inside =
+              std::max(worst_inside, std::hypot(inst.state.x[i].x(), inst.state.x[i].y()));
+    }
+    const double s_node = inst.model.length - inst.drive.depth + s_in;
+    int i = 0;
+    while (inst.model.node_s[i] < s_node) ++i;
+    return std::pair(worst_inside, std::hypot(inst.state.x[i].x(), inst.state.x[i].y()));
+  };
+  const auto [inside, beyond] = sag_at(0.03, 0.055);
+  const double play = 0.1e-3;
+  EXPECT_LT(inside, 1.05 * play) << "within the sheath's lumen (m off the axis)";
+  EXPECT_GT(beyond, 5.0 * play) << "beyond it the rod sags";
+  EXPECT_GT(sag_at(0.0, 0.02).second, 2.0 * play) << "without a sheath it sags there too";
+}
+
 TEST(Solver, BadInstrumentInputIsAnInputError) {
   RodDef d = test_rod(0.1, 20);
   EXPECT_THROW(make_instrument(d, Sheath{}, ContactMaterial{0.1, 0.2}, 0.05), InputError);
