@@ -138,7 +138,7 @@ struct Scenario {
   double dt = 1e-3;          // s, physics step (1 kHz or faster)
   double time_limit = 60.0;  // s of simulated time before the run ends unfinished
   // The introducer sheath's straight part inside the vessel from the access point (m; 0: none),
-  // its lumen 0.2 mm wider than the widest instrument (physics.md 6.4).
+  // its lumen 0.2 mm wider than the widest instrument (physics.md 6.2).
   double sheath_length = 25e-3;
   std::vector<ScenarioInstrument> instruments;
   std::string timeline;  // timeline file (relative to the scenario's folder); "" = autopilot

@@ -76,7 +76,7 @@ struct Sheath {
   double max_spin = 30.0;  // rad/s: rotation rate limit
   // The introducer sheath's straight tube inside the body, from the access point along the axis:
   // its length (0: none) and lumen radius (m). Free nodes inside it are held within its lumen
-  // (physics.md 6.4) instead of meeting the vessel wall.
+  // (physics.md 6.2) instead of meeting the vessel wall.
   double length = 0.0;
   double inner_radius = 0.0;
 };
@@ -214,7 +214,7 @@ struct Coupling {
   int outer = 1;
   double mu = 0.04;  // wire-in-catheter lumen friction (clinical.md)
   // The edges that leave through the outer instrument's distal opening pass inside its rim and
-  // wrap round it (physics.md 6.3); false: only the nodes are held (VCSim3's constraints).
+  // wrap round it (physics.md 7.1); false: only the nodes are held (VCSim3's constraints).
   bool rim = true;
   std::vector<CoaxialContact> contacts;  // scratch, capacity = inner nodes
   double clearance = 0.0;                // m, set by step_instruments

@@ -90,7 +90,7 @@ bool in_sheath(const Instrument& inst, int i) {
          inst.model.node_s[i] - (inst.model.length - inst.drive.depth) <= inst.sheath.length;
 }
 
-// The introducer sheath (physics.md 6.4): a straight tube on the axis from the access point. Its
+// The introducer sheath (physics.md 6.2): a straight tube on the axis from the access point. Its
 // lumen holds the free nodes inside it like a wall (with the instrument's vessel friction); they
 // meet neither the vessel wall nor, through it, the tissue around the puncture. Without it the
 // first free node is held only by the vessel, and a catheter loaded from its tip (a J wire pulled
@@ -317,7 +317,7 @@ constexpr int kRimEdges = 3;
 // outer tip) and wrap round it at no less than its own radius r_w. Node constraints alone let that
 // edge cut through the tip's wall: a shaped wire tip pulled back in then enters node by node, each
 // node snapping from outside into the lumen, a jump of the shape and of the force at the hand in
-// each (physics.md 6.3). The contact point slides along the edge as the wire does, so the
+// each (physics.md 7.1). The contact point slides along the edge as the wire does, so the
 // constraint and its reaction change continuously. In the plane of the axis and the edge's far
 // node, with L the rim point on that side and p the edge's point nearest L, the gap is
 // sd - r_w with sd = +-|p - L|, + when L lies on the wall's side of the edge (the wire passes in

@@ -364,7 +364,7 @@ struct JPullIn {
 
 // Force feedback (issue 4): pulling a J tip back into its catheter, the hand feels the J
 // straighten as a smooth pull, and that pull does the work the straightened J stores. The wire
-// leaves through the catheter's tip against its rim (physics.md 6.3), so the point where the
+// leaves through the catheter's tip against its rim (physics.md 7.1), so the point where the
 // lumen holds it slides along the wire, and the quasi-static hand force (6.1) changes by less than
 // 0.1 N from the median of its 11 neighbouring steps. Energy: the hand's work W is at least the
 // elastic energy U the rods gain (no friction; the rest is damping, and the tip's snap-through

@@ -186,7 +186,7 @@ TEST(Solver, TurningAtTheHandTurnsTheTip) {
   EXPECT_NEAR(inst.drive.torque, 0.0, 1e-6) << "no friction: nothing resists once turned";
 }
 
-// The introducer sheath (physics.md 6.4): a 100 mm rod inserted 60 mm, no vessel wall, loaded
+// The introducer sheath (physics.md 6.2): a 100 mm rod inserted 60 mm, no vessel wall, loaded
 // sideways by its (scaled) weight. The nodes within the sheath's 30 mm stay within its lumen,
 // 0.1 mm wider than the rod, while the part beyond it sags as a cantilever; without the sheath the
 // node 20 mm in sags as well.
