@@ -343,6 +343,7 @@ void add_rim_contact(Coupling& cp, const Instrument& in, const Instrument& out,
     const Vec3 u = r1.normalized();
     const Vec3 lip = tip + rim * u;
     const Vec3 e = x1 - x0;
+    if (e.squaredNorm() < 1e-24) continue;  // a collapsed edge has no direction to wrap
     const double a = std::clamp((lip - x0).dot(e) / e.squaredNorm(), 0.0, 1.0);
     if (a <= 0.0) continue;  // nearest at the edge's first node: that node's own constraint
     const Vec3 away = x0 + a * e - lip;  // from the rim point to the edge
