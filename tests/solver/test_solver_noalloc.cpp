@@ -1,9 +1,11 @@
-// A warm instrument step with contacts allocates nothing (replaced global operator new).
+// A warm instrument step with contacts, and a warm pair step with the rim and the sheath, allocate
+// nothing (replaced global operator new).
 #include <gtest/gtest.h>
 
 #include <atomic>
 #include <cstdlib>
 #include <new>
+#include <vector>
 
 #include "vcsim/solver.h"
 
@@ -55,5 +57,57 @@ TEST(SolverNoAlloc, WarmInstrumentStepWithContactsAllocatesNothing) {
   EXPECT_EQ(g_allocations.load() - before, 0);
   EXPECT_GT(contacts, 0) << "the test must exercise contacts";
   EXPECT_GE(queries, 2 * StaticWall::kParallelChunk) << "the test must exercise parallel queries";
+#endif
+}
+
+// The same for a wire with a curved tip being pulled back into a catheter through the introducer
+// sheath: concentric, rim (physics.md 7.1) and sheath (6.2) contacts, the hand-force walk with
+// two reactions at a node.
+TEST(SolverNoAlloc, WarmPairStepWithRimAndSheathAllocatesNothing) {
+#ifdef VCSIM_SANITIZE
+  GTEST_SKIP() << "the sanitizer runtime owns operator new";
+#else
+  RodDef cd;
+  cd.length = 0.1;
+  cd.segments = 40;
+  cd.outer_radius = 1.0e-3;
+  cd.inner_radius = 0.6e-3;
+  cd.youngs_modulus = 1e9;
+  cd.base = cd.tip = BoundaryKind::kFree;
+  RodDef wd = cd;
+  wd.length = 0.12;
+  wd.segments = 60;
+  wd.outer_radius = 0.2e-3;
+  wd.inner_radius = 0.0;
+  wd.tip_shape = {TipSection::arc(5e-3, 2.0)};  // its last 10 mm curved
+  Sheath sh;
+  sh.length = 0.02;
+  sh.inner_radius = 1.1e-3;
+  const double dt = 2e-4;
+  std::vector<Instrument> insts;
+  insts.push_back(make_instrument(wd, sh, ContactMaterial{}, 0.068));  // 8 mm out of the catheter
+  insts.push_back(make_instrument(cd, sh, ContactMaterial{}, 0.06));
+  for (Instrument& in : insts) scale_for_time_step(in.model, dt, kQuasiStaticKpRatio);
+  std::vector<Coupling> cps(1);
+  cps[0].contacts.reserve(insts[0].model.n);
+  SolverSettings s;
+  s.rod.dt = dt;
+  set_quasi_static_damping(s.rod);
+  s.rod.gravity = Vec3(1.0, 0.0, 0.0);  // sideways: the shafts lean on the sheath's lumen
+  s.collisions = false;
+  using M = DriveCommand::Mode;
+  const DriveCommand hold[] = {{M::kPosition, 0.068, 0.0}, {M::kPosition, 0.06, 0.0}};
+  for (int k = 0; k < 500; ++k) step_instruments(insts, cps, nullptr, s, hold);
+  const DriveCommand pull[] = {{M::kVelocity, -0.02, 0.0}, {M::kVelocity, 0.0, 0.0}};
+  const long before = g_allocations.load();
+  int rims = 0, sheath = 0;
+  for (int k = 0; k < 300; ++k) {
+    step_instruments(insts, cps, nullptr, s, pull);
+    for (const CoaxialContact& c : cps[0].contacts) rims += c.a > 0.0 ? 1 : 0;
+    sheath += static_cast<int>(insts[1].contacts.size());
+  }
+  EXPECT_EQ(g_allocations.load() - before, 0);
+  EXPECT_GT(rims, 0) << "the test must exercise the rim";
+  EXPECT_GT(sheath, 0) << "the test must exercise the sheath";
 #endif
 }
