@@ -260,6 +260,44 @@ TEST(Pair, AWireNodeBeyondTheCatheterTipIsOutside) {
   for (const CoaxialContact& cc : p.cps[0].contacts) EXPECT_NE(cc.node, tip);
 }
 
+// A catheter bunched up into a loop near the access (physics.md 7: in the default run, once,
+// folded at the access point) runs 20 mm ahead of the wire by arc length. The catheter edge at a
+// wire node's arc length then lies on the loop, 2 to 3 mm from the node, and the walk along the
+// catheter from it stops at a local minimum of the distance there, while the node lies on the
+// catheter's centreline 20 mm further on. The pairing must find that edge: no wire node comes out
+// outside the lumen (it would be dragged across to the loop).
+TEST(Pair, AWireNodeIsPairedWithTheCatheterItLiesInWhereTheCatheterLoops) {
+  StraightPair p(0.05, 0.08);
+  Instrument& c = p.insts[1];
+  const double loop_start = 0.01, loop_length = 0.02;
+  const double radius = loop_length / (2.0 * std::numbers::pi);
+  for (int i = c.drive.first_free; i < c.model.n; ++i) {
+    const double sigma = c.model.node_s[i] - (c.model.length - c.drive.depth);
+    if (sigma <= loop_start) continue;  // straight on the axis up to the loop
+    if (sigma < loop_start + loop_length) {
+      const double phi = 2.0 * std::numbers::pi * (sigma - loop_start) / loop_length;
+      c.state.x[i] = Vec3(radius * (1.0 - std::cos(phi)), 0.0, loop_start + radius * std::sin(phi));
+    } else {
+      c.state.x[i] = Vec3(0.0, 0.0, sigma - loop_length);  // on the axis again, beyond the loop
+    }
+  }
+  SolverSettings s;
+  s.rod.dt = 1e-3;
+  const DriveCommand cmds[2] = {};
+  step_instruments(p.insts, p.cps, nullptr, s, cmds);
+  int paired = 0;
+  for (const CoaxialContact& cc : p.cps[0].contacts) {
+    if (cc.a > 0.0) continue;
+    ++paired;
+    EXPECT_LE(cc.excess, 1e-9) << "wire node " << cc.node << " paired with catheter edge "
+                               << cc.segment << ", " << cc.excess * 1e3 << " mm outside";
+  }
+  int inside = 0;
+  for (int i = p.insts[0].drive.first_free; i < p.insts[0].model.n; ++i)
+    inside += p.insts[0].sheathed[i];
+  EXPECT_GT(inside, 20) << "the wire is inside the catheter";
+}
+
 // Force feedback (issue 4): the part of a concentric impulse that puts a wire node back inside
 // the lumen is a position fix-up, not a load, and the hands do not feel it, nor the lumen
 // friction it allows. A straight wire slides through a straight catheter on the sheath axis (no
