@@ -257,23 +257,17 @@ Vec3 offset_from_outer(const Instrument& outer, int k, const Vec3& p, int& best,
   // either way decides; without this the coupling would drag the node across to the wrong part.
   const double lumen = mo.inner_radius[best];
   if (best_d2 > lumen * lumen) {
+    auto consider = [&](int kk) {
+      const double d2 = project_on_edge(out, kk, p, t);
+      if (d2 < best_d2) {
+        best_d2 = d2;
+        best = kk;
+        best_t = t;
+      }
+    };
     const double s0 = mo.edge_s[k];
-    for (int kk = k; kk >= 0 && s0 - mo.edge_s[kk] <= kPairWindow; --kk) {
-      const double d2 = project_on_edge(out, kk, p, t);
-      if (d2 < best_d2) {
-        best_d2 = d2;
-        best = kk;
-        best_t = t;
-      }
-    }
-    for (int kk = k + 1; kk < m && mo.edge_s[kk] - s0 <= kPairWindow; ++kk) {
-      const double d2 = project_on_edge(out, kk, p, t);
-      if (d2 < best_d2) {
-        best_d2 = d2;
-        best = kk;
-        best_t = t;
-      }
-    }
+    for (int kk = k; kk >= 0 && s0 - mo.edge_s[kk] <= kPairWindow; --kk) consider(kk);
+    for (int kk = k + 1; kk < m && mo.edge_s[kk] - s0 <= kPairWindow; ++kk) consider(kk);
   }
   const Vec3& a = out.x[best];
   return p - (a + best_t * (out.x[best + 1] - a));
