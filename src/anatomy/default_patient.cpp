@@ -339,8 +339,11 @@ VesselTree make_patient(PatientVariant variant) {
   hs.c = Vec3::Zero();
   hs.c = bif - hs.on_surface(u_b, th_b, r_lm * kMm);
 
+  // It leaves through the middle of its sinus (where a Judkins left's tip comes to rest) and
+  // turns anterior toward the bifurcation.
+  const Vec3 d_out = (w_left + Vec3(0.0, 0.0, -0.1)).normalized();
   const int lm = b.add("left_main", VesselKind::kCoronary, root,
-                       {a14, a14 + 8 * kMm * d_lm, a14 + 17 * kMm * d_lm, bif},
+                       {a14, a14 + 8 * kMm * d_out, a14 + 16 * kMm * d_out, bif},
                        {r_lm * kMm, r_lm * kMm, r_lm * kMm, r_lm * kMm});
   // Resample the left main at 0.8 mm like the other coronaries.
   {
