@@ -140,6 +140,11 @@ struct Scenario {
   // The introducer sheath's straight part inside the vessel from the access point (m; 0: none),
   // its lumen 0.2 mm wider than the widest instrument (physics.md 6.2).
   double sheath_length = 25e-3;
+  // While a hand moves faster than fine_step_speed (m/s), each step is split into fine_steps
+  // steps, with the masses scaled for the shorter step (physics.md 5.4): the scaled inertia of a
+  // fast pull goes as the step squared. 1: never split.
+  int fine_steps = 4;
+  double fine_step_speed = 0.13;
   std::vector<ScenarioInstrument> instruments;
   std::string timeline;  // timeline file (relative to the scenario's folder); "" = autopilot
   std::vector<AutopilotPhase> autopilot;
@@ -241,6 +246,16 @@ class Simulator {
 
  private:
   void update_metrics(const std::vector<Vec3>& old_tips);
+  // The fastest hand this step's commands ask for (m/s).
+  double hand_speed() const;
+  // Swaps every instrument's masses and inertias with the set scaled for the other step size.
+  void swap_masses();
+
+  // An instrument's masses and inertias (RodModel's fields of the same names).
+  struct MassSet {
+    std::vector<double> node_mass, inv_mass;
+    std::vector<Vec3> inertia, inv_inertia;
+  };
 
   Scenario sc_;
   VesselTree tree_;
@@ -256,6 +271,9 @@ class Simulator {
   std::vector<Coupling> couplings_;
   SolverSettings settings_;
   std::vector<DriveCommand> drive_;
+  std::vector<DriveCommand> sub_drive_;  // (instrument) the hand's command for one fine step
+  std::vector<MassSet> other_masses_;    // (instrument) scaled for the step the run is not using
+  bool fine_ = false;                    // steps are split (fine_steps) and use the fine masses
   std::vector<RodState> backup_;
   std::vector<DriveState> backup_drive_;
   ContrastModel contrast_;
@@ -350,6 +368,7 @@ class Autopilot {
   double retry_turn = 0.7854;  // rad turned before each retry (an eighth of a turn)
   double steer_gain = 3.0;     // 1/s, roll rate per radian of tip misalignment
   double max_spin = 3.14;      // rad/s at the hand
+  double max_accel = 3.0;      // m/s^2 of a withdrawal's pull at the hand (0: a velocity step)
   int max_reengage = 3;        // re-engagements of a held instrument that fell out, per run
   bool trace = false;          // print what it sees and does to stderr, 4 times a second
 
@@ -371,6 +390,7 @@ class Autopilot {
   int phase_ = -1;
   bool failed_ = false;
   double phase_start_ = 0.0;
+  double pull_speed_ = 0.0;                         // m/s of the current withdrawal
   std::vector<double> depth_, roll_, roll_target_;  // (instrument) commanded, m and rad
   int leader_ = -1, follower_ = -1;
   int relative_ = -1;  // the instrument a withdraw phase's depth is relative to, or -1

@@ -81,6 +81,7 @@ Autopilot::Autopilot(const Simulator& sim) : plan_(sim.scenario().autopilot) {
 
 void Autopilot::start_phase(const Simulator& sim) {
   phase_start_ = sim.time();
+  pull_speed_ = 0.0;
   retries_ = 0;
   backing_off_ = false;
   if (finished()) {
@@ -275,7 +276,13 @@ void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
       case AutopilotPhase::Kind::kWithdraw: {
         const double target =
             std::max(0.0, relative_ >= 0 ? sim.depth(relative_) - ph.depth : ph.depth);
-        const double step = ph.speed * dt;
+        // A hand speeds up and slows down over a few centimetres rather than in one step.
+        const double left = std::abs(target - depth_[leader_]);
+        double v = ph.speed;
+        if (max_accel > 0.0)
+          v = std::min({v, pull_speed_ + max_accel * dt, std::sqrt(2.0 * max_accel * left)});
+        pull_speed_ = v;
+        const double step = v * dt;
         depth_[leader_] += std::clamp(target - depth_[leader_], -step, step);
         if (std::abs(sim.depth(leader_) - target) < 0.5e-3) {
           ++phase_;
