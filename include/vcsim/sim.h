@@ -274,6 +274,7 @@ class Simulator {
   std::vector<DriveCommand> sub_drive_;  // (instrument) the hand's command for one fine step
   std::vector<MassSet> other_masses_;    // (instrument) scaled for the step the run is not using
   bool fine_ = false;                    // steps are split (fine_steps) and use the fine masses
+  std::vector<double> fine_force_, fine_torque_;  // (instrument) hand force summed over them
   std::vector<RodState> backup_;
   std::vector<DriveState> backup_drive_;
   ContrastModel contrast_;

@@ -1,5 +1,6 @@
 // The scenario format (data/scenarios/*.json, docs/scenarios.md): units in key names, converted
 // to SI at load; unknown keys are refused so that a typo is not silently ignored.
+#include <cmath>
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
@@ -105,6 +106,12 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   sc.dt = f.in_range_or("dt_ms", 0.0, 1.0, 1.0) * 1e-3;
   sc.time_limit = f.in_range_or("time_limit_s", 0.0, 3600.0, 60.0);
   sc.sheath_length = f.in_range_or("sheath_length_mm", 0.0, 300.0, 25.0) * kMm;
+  if (f.has("fine_steps")) {
+    const double n = f.in_range("fine_steps", 1.0, 16.0);
+    if (n != std::floor(n)) f.fail("fine_steps", "expected a whole number from 1 to 16");
+    sc.fine_steps = static_cast<int>(n);
+  }
+  sc.fine_step_speed = f.in_range_or("fine_step_speed_mm_s", 0.0, 1000.0, 130.0) * kMm;
 
   const Json& insts = f.array("instruments");
   if (insts.empty()) f.fail("instruments", "expected at least one instrument");

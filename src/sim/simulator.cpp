@@ -157,8 +157,13 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
     Instrument inst = make_instrument(
         def, sheath,
         ContactMaterial{specs_[i].friction.vessel_static, specs_[i].friction.vessel_dynamic}, 0.0);
-    // Quasi-static: each node and frame only as heavy as the explicit step needs (physics.md 5.4).
+    // Quasi-static: each node and frame only as heavy as the explicit step needs (physics.md 5.4),
+    // and a second set for the fine steps of a fast hand.
+    RodModel fine = inst.model;
+    scale_for_time_step(fine, sc_.dt / sc_.fine_steps, kQuasiStaticKpRatio);
     scale_for_time_step(inst.model, sc_.dt, kQuasiStaticKpRatio);
+    other_masses_.push_back({std::move(fine.node_mass), std::move(fine.inv_mass),
+                             std::move(fine.inertia), std::move(fine.inv_inertia)});
     insts_.push_back(std::move(inst));
   }
   for (std::size_t i = 0; i < sc_.instruments.size(); ++i) {
@@ -175,6 +180,9 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
   s.validate(src);
   drive_.resize(insts_.size());
   for (DriveCommand& d : drive_) d.mode = DriveCommand::Mode::kPosition;
+  sub_drive_.resize(insts_.size());
+  fine_force_.assign(insts_.size(), 0.0);
+  fine_torque_.assign(insts_.size(), 0.0);
   backup_.resize(insts_.size());
   backup_drive_.resize(insts_.size());
   contrast_ = ContrastModel(tree_, sc_.contrast, sc_.dt);
@@ -266,8 +274,46 @@ void Simulator::step(const DeviceCommands& cmds) {
                            : d.translation <= 0.0 && d.rotation == 0.0;
     insts_[i].parked = ds.depth <= 0.0 && still;
   }
-  if (beating_wall_) beating_wall_->set_time(time_ + dt);
-  step_instruments(insts_, couplings_, wall_, settings_, drive_);
+  // A fast hand: fine steps with the masses for them (physics.md 5.4), from above
+  // fine_step_speed until the hands are below half of it.
+  const double speed = hand_speed();
+  const bool fine = sc_.fine_steps > 1 && speed > (fine_ ? 0.5 : 1.0) * sc_.fine_step_speed;
+  if (fine != fine_) swap_masses();
+  const int n = fine_ ? sc_.fine_steps : 1;
+  settings_.rod.dt = dt / n;
+  set_quasi_static_damping(settings_.rod);
+  for (int k = 1; k <= n; ++k) {
+    // The hand's command spread evenly over the fine steps: a position k / n of the way there.
+    for (std::size_t i = 0; i < insts_.size(); ++i) {
+      DriveCommand& c = sub_drive_[i];
+      c = drive_[i];
+      if (c.mode == DriveCommand::Mode::kPosition && k < n) {
+        const DriveState& start = backup_drive_[i];
+        c.translation = start.depth + (drive_[i].translation - start.depth) * k / n;
+        c.rotation = start.roll + (drive_[i].rotation - start.roll) * k / n;
+      }
+    }
+    if (beating_wall_) beating_wall_->set_time(time_ + dt * k / n);
+    step_instruments(insts_, couplings_, wall_, settings_, sub_drive_);
+    for (std::size_t i = 0; i < insts_.size(); ++i) {
+      const DriveState& ds = insts_[i].drive;
+      fine_force_[i] = (k == 1 ? 0.0 : fine_force_[i]) + ds.axial_force_raw / n;
+      fine_torque_[i] = (k == 1 ? 0.0 : fine_torque_[i]) + ds.torque_raw / n;
+    }
+  }
+  // The hand force of a split step is its fine steps' mean: the step's impulse over dt, as a
+  // sensor that integrates over the step reads it. (The low-pass, if any, ran on the fine steps.)
+  if (n > 1) {
+    for (std::size_t i = 0; i < insts_.size(); ++i) {
+      DriveState& ds = insts_[i].drive;
+      ds.axial_force_raw = fine_force_[i];
+      ds.torque_raw = fine_torque_[i];
+      if (settings_.feedback_cutoff_hz <= 0.0) {
+        ds.axial_force = ds.axial_force_raw;
+        ds.torque = ds.torque_raw;
+      }
+    }
+  }
 
   bool finite = true;
   for (const Instrument& in : insts_) finite = finite && finite_state(in.state);
@@ -342,8 +388,42 @@ void ContrastModel::step(double flow, const TreeLocation& at) {
   if (!any) segment_ = -1;  // washed out: the next injection starts afresh
 }
 
+double Simulator::hand_speed() const {
+  double v = 0.0;
+  for (std::size_t i = 0; i < insts_.size(); ++i) {
+    if (insts_[i].parked) continue;
+    const DriveCommand& d = drive_[i];
+    const double rate = d.mode == DriveCommand::Mode::kPosition
+                            ? (d.translation - insts_[i].drive.depth) / sc_.dt
+                            : d.translation;
+    v = std::max(v, std::min(std::abs(rate), insts_[i].sheath.max_speed));
+  }
+  return v;
+}
+
+void Simulator::swap_masses() {
+  fine_ = !fine_;
+  for (std::size_t i = 0; i < insts_.size(); ++i) {
+    RodModel& md = insts_[i].model;
+    RodState& st = insts_[i].state;
+    MassSet& o = other_masses_[i];
+    // Heavier (back to the coarse step): momentum is kept, so the switch takes energy out in
+    // both directions (lighter: the velocities are kept).
+    if (!fine_) {
+      for (int j = 0; j < md.n; ++j)
+        if (o.node_mass[j] > 0.0) st.v[j] *= md.node_mass[j] / o.node_mass[j];
+      for (int j = 0; j < md.m; ++j)
+        st.omega[j] = st.omega[j].cwiseProduct(md.inertia[j]).cwiseQuotient(o.inertia[j]);
+    }
+    std::swap(md.node_mass, o.node_mass);
+    std::swap(md.inv_mass, o.inv_mass);
+    std::swap(md.inertia, o.inertia);
+    std::swap(md.inv_inertia, o.inv_inertia);
+  }
+}
+
 void Simulator::update_metrics(const std::vector<Vec3>& old_tips) {
-  const double dt = sc_.dt;
+  const double dt = settings_.rod.dt;  // the last (fine) step's: the impulses are its
   for (std::size_t i = 0; i < insts_.size(); ++i) {
     const Instrument& in = insts_[i];
     if (in.drive.depth > 0.0)

@@ -44,6 +44,8 @@ TEST(Scenario, DefaultParses) {
   EXPECT_FALSE(sc.autopilot.empty());
   EXPECT_DOUBLE_EQ(sc.sheath_length, 25e-3);
   EXPECT_FALSE(sc.instruments[1].rim) << "the J wire's withdrawal: see docs/validation.md";
+  EXPECT_EQ(sc.fine_steps, 4);
+  EXPECT_DOUBLE_EQ(sc.fine_step_speed, 0.13);
 }
 
 TEST(Scenario, UnitsAreConverted) {
@@ -108,6 +110,12 @@ TEST(Scenario, BadInputNamesTheField) {
                "instruments[1].rim");
   expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"sheath_length_mm\": 400"),
                "sheath_length_mm");
+  // Fine steps: a whole number from 1 to 16, above a positive hand speed.
+  for (const char* n : {"0", "2.5", "17", "\"four\""})
+    expect_error(edit("\"name\": \"t\"", std::string("\"name\": \"t\", \"fine_steps\": ") + n),
+                 "fine_steps");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"fine_step_speed_mm_s\": 0"),
+               "fine_step_speed_mm_s");
   // Duplicated names would make commands ambiguous.
   expect_error(edit("\"catalogue\": \"wire-035-j3-hydrophilic\"}",
                     "\"catalogue\": \"wire-035-j3-hydrophilic\"}, {\"name\": \"wire\", "
