@@ -107,7 +107,7 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   sc.time_limit = f.in_range_or("time_limit_s", 0.0, 3600.0, 60.0);
   sc.sheath_length = f.in_range_or("sheath_length_mm", 0.0, 300.0, 25.0) * kMm;
   if (f.has("fine_steps")) {
-    const double n = f.in_range("fine_steps", 1.0, 16.0);
+    const double n = f.in_range("fine_steps", 0.0, 16.0);
     if (n != std::floor(n)) f.fail("fine_steps", "expected a whole number from 1 to 16");
     sc.fine_steps = static_cast<int>(n);
   }

@@ -52,6 +52,14 @@ TEST(Scenario, UnitsAreConverted) {
   const Scenario sc = parse_scenario(kMinimal, "t.json");
   ASSERT_EQ(sc.autopilot.size(), 1u);
   EXPECT_DOUBLE_EQ(sc.autopilot[0].goal_distance, 5e-3);
+  EXPECT_EQ(parse_scenario(edit("\"name\": \"t\"", "\"name\": \"t\", \"fine_steps\": 1"), "t.json")
+                .fine_steps,
+            1);
+  EXPECT_DOUBLE_EQ(
+      parse_scenario(edit("\"name\": \"t\"", "\"name\": \"t\", \"fine_step_speed_mm_s\": 50"),
+                     "t.json")
+          .fine_step_speed,
+      0.05);
   EXPECT_DOUBLE_EQ(sc.dt, 1e-3);
   EXPECT_EQ(sc.autopilot[0].kind, AutopilotPhase::Kind::kNavigate);
 }
