@@ -404,8 +404,10 @@ class Autopilot {
   double progress_ = 0.0;
   double best_progress_ = 0.0;
   double best_time_ = 0.0;
-  double depth_at_best_ = -1.0;  // inserted depth when the tip last made progress (m)
-  double roll_start_ = 0.0;      // roll when the phase started (rad)
+  double depth_at_best_ = -1.0;       // inserted depth when the tip last made progress (m)
+  double phase_best_progress_ = 0.0;  // the furthest the tip got along the route in this phase
+  double phase_best_depth_ = 0.0;     // the inserted depth then (m)
+  double roll_start_ = 0.0;           // roll when the phase started (rad)
   bool backing_off_ = false;
   double backoff_until_ = 0.0;  // depth to pull back to
   int retries_ = 0;

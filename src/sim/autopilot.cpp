@@ -120,6 +120,8 @@ void Autopilot::start_phase(const Simulator& sim) {
   best_time_ = sim.time();
   roll_start_ = roll_[leader_];
   depth_at_best_ = -1.0;
+  phase_best_progress_ = 0.0;
+  phase_best_depth_ = sim.depth(leader_);
 }
 
 void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
@@ -223,7 +225,11 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
     }
     ++retries_total_;
     backing_off_ = true;
-    backoff_until_ = std::max(0.0, std::min(sim.depth(L), depth_at_best_) - backoff);
+    // Back from where the last progress was, but not more than two back-offs behind where the
+    // tip got furthest in this phase: retries that each start a back-off lower walked a guide
+    // that did not respond at once 150 mm back up into the arch.
+    backoff_until_ = std::max({0.0, std::min(sim.depth(L), depth_at_best_) - backoff,
+                               std::min(sim.depth(L), phase_best_depth_) - 2.0 * backoff});
     depth_[L] = sim.depth(L);
     // Turn the tip a quarter turn before the next try, so that the tries cover every direction.
     // Turn the tip before the next try, to the next of a few directions around where the phase
@@ -232,6 +238,10 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
     constexpr double kTries[] = {1.0, -1.0, 2.0, -2.0, 0.0};
     roll_target_[L] = roll_start_ + retry_turn * kTries[(retries_ - 1) % 5];
   } else {
+    if (progress_ > phase_best_progress_) {
+      phase_best_progress_ = progress_;
+      phase_best_depth_ = sim.depth(L);
+    }
     if (progress_ > best_progress_ + kProgressStep) {
       best_progress_ = progress_;
       best_time_ = t;
@@ -334,7 +344,16 @@ void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
           w.speed = 0.05;
           again.push_back(w);
         }
-        again.push_back(h.phase);
+        // The inner instrument rides along 20 mm inside the guide's tip while it is re-seated:
+        // left where it was, a wire stuck out of a guide that backed off to find the ostium
+        // again (by up to 95 mm in the default scene), and a Judkins tip cannot take its shape
+        // round a wire.
+        AutopilotPhase seat = h.phase;
+        if (!again.empty()) {
+          seat.follower = again.front().instrument;
+          seat.follow_gap = again.front().depth;
+        }
+        again.push_back(seat);
         plan_.insert(plan_.begin() + phase_, again.begin(), again.end());
         holds_.erase(holds_.begin() + static_cast<std::ptrdiff_t>(hi));
         start_phase(sim);
