@@ -1,0 +1,74 @@
+// A warm Simulator step allocates nothing, through a fast pull's fine steps and back (replaced
+// global operator new): it runs at the haptic rate.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+
+#include "vcsim/sim.h"
+
+#include "counting_new.h"
+
+using vcsim::test::g_allocations;
+
+namespace vcsim {
+namespace {
+
+TEST(SimulatorNoAlloc, WarmStepsThroughAFastPullAllocateNothing) {
+#ifdef VCSIM_SANITIZE
+  GTEST_SKIP() << "the sanitizer runtime owns operator new";
+#else
+  Scenario sc = parse_scenario(R"({"format": "vcsim-scenario", "version": 1, "name": "pull",
+    "motion": {"beating": true}, "dt_ms": 0.5,
+    "instruments": [
+      {"name": "catheter", "catalogue": "catheter-jl4-6f", "max_nodes": 128, "tip_segment_mm": 2},
+      {"name": "wire", "catalogue": "wire-035-j3-hydrophilic", "inside": "catheter",
+       "max_nodes": 128, "tip_segment_mm": 2}],
+    "input": {"type": "timeline", "file": "unused.json"}})",
+                               "pull.json");
+  Simulator sim(sc);
+  DeviceCommands cmds;
+  cmds.instruments.resize(2);
+  cmds.instruments[0].name = "catheter";
+  cmds.instruments[1].name = "wire";
+  std::vector<ForceFeedback> fb;
+  const double coarse_tip_mass = sim.instrument(1).model.node_mass.back();
+  int fine = 0, coarse = 0;  // steps taken with each mass set
+  // In at 80 mm/s (the wire 20 mm ahead), then the wire 30 mm back at 300 mm/s and in again at
+  // 300 mm/s, twice: the second round, warm, must not allocate.
+  auto round = [&](double t0) {
+    double depth = 0.14;
+    while (sim.time() < t0 + 0.2) {
+      depth = std::max(0.11, depth - 0.3 * sc.dt);
+      cmds.instruments[1].translation_mm = depth * 1e3;
+      sim.step(cmds);
+      sim.feedback(fb);
+      ++(sim.instrument(1).model.node_mass.back() < coarse_tip_mass ? fine : coarse);
+    }
+    while (sim.time() < t0 + 0.4) {
+      depth = std::min(0.14, depth + 0.3 * sc.dt);
+      cmds.instruments[1].translation_mm = depth * 1e3;
+      sim.step(cmds);
+      sim.feedback(fb);
+      ++(sim.instrument(1).model.node_mass.back() < coarse_tip_mass ? fine : coarse);
+    }
+  };
+  while (sim.time() < 1.75) {
+    cmds.instruments[0].translation_mm = std::min(120.0, 80.0 * sim.time());
+    cmds.instruments[1].translation_mm = std::min(140.0, 80.0 * sim.time() + 20.0);
+    sim.step(cmds);
+  }
+  round(sim.time());
+  const long before = g_allocations.load();
+  const std::int64_t steps = sim.metrics().steps;
+  fine = coarse = 0;
+  round(sim.time());
+  EXPECT_EQ(g_allocations.load() - before, 0);
+  EXPECT_GT(fine, 300) << "the fast moves are stepped finely";
+  EXPECT_GT(coarse, 100) << "and the pauses between them are not";
+  EXPECT_GT(sim.metrics().steps - steps, 700);
+  EXPECT_EQ(sim.metrics().rollbacks, 0);
+#endif
+}
+
+}  // namespace
+}  // namespace vcsim
