@@ -10,6 +10,8 @@
 
 #include "vcsim/sim.h"
 
+#include "jl4_scene.h"
+
 namespace vcsim {
 namespace {
 
@@ -142,20 +144,10 @@ TEST(Simulator, ScriptedPushFollowsTheIliacRoute) {
 // simulator after every step of the pull.
 template <class Check>
 double pull_j_into_catheter(int fine_steps, double pull, Check&& check) {
-  Scenario sc = parse_scenario(R"({"format": "vcsim-scenario", "version": 1, "name": "pull",
-    "motion": {"beating": false}, "dt_ms": 0.5,
-    "instruments": [
-      {"name": "catheter", "catalogue": "catheter-jl4-6f", "max_nodes": 256, "tip_segment_mm": 2},
-      {"name": "wire", "catalogue": "wire-035-j3-hydrophilic", "inside": "catheter",
-       "max_nodes": 256, "tip_segment_mm": 2}],
-    "input": {"type": "timeline", "file": "unused.json"}})",
-                               "pull.json");
+  Scenario sc = test::jl4_with_j_wire(256, false);
   sc.fine_steps = fine_steps;
   Simulator sim(sc);
-  DeviceCommands cmds;
-  cmds.instruments.resize(2);
-  cmds.instruments[0].name = "catheter";
-  cmds.instruments[1].name = "wire";
+  DeviceCommands cmds = test::jl4_with_j_wire_commands();
   constexpr double kCath = 0.25, kOut = 0.04, kIn = 0.08, kAccel = 3.0, kBack = 0.1;
   const double dt = sc.dt;
   while (sim.time() < (kCath + kOut) / kIn + 0.3) {  // both in at 80 mm/s, the wire ahead

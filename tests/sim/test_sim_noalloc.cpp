@@ -7,6 +7,7 @@
 #include "vcsim/sim.h"
 
 #include "counting_new.h"
+#include "jl4_scene.h"
 
 using vcsim::test::g_allocations;
 
@@ -17,19 +18,9 @@ TEST(SimulatorNoAlloc, WarmStepsThroughAFastPullAllocateNothing) {
 #ifdef VCSIM_SANITIZE
   GTEST_SKIP() << "the sanitizer runtime owns operator new";
 #else
-  Scenario sc = parse_scenario(R"({"format": "vcsim-scenario", "version": 1, "name": "pull",
-    "motion": {"beating": true}, "dt_ms": 0.5,
-    "instruments": [
-      {"name": "catheter", "catalogue": "catheter-jl4-6f", "max_nodes": 128, "tip_segment_mm": 2},
-      {"name": "wire", "catalogue": "wire-035-j3-hydrophilic", "inside": "catheter",
-       "max_nodes": 128, "tip_segment_mm": 2}],
-    "input": {"type": "timeline", "file": "unused.json"}})",
-                               "pull.json");
+  const Scenario sc = test::jl4_with_j_wire(128, true);
   Simulator sim(sc);
-  DeviceCommands cmds;
-  cmds.instruments.resize(2);
-  cmds.instruments[0].name = "catheter";
-  cmds.instruments[1].name = "wire";
+  DeviceCommands cmds = test::jl4_with_j_wire_commands();
   std::vector<ForceFeedback> fb;
   const double coarse_tip_mass = sim.instrument(1).model.node_mass.back();
   int fine = 0, coarse = 0;  // steps taken with each mass set
