@@ -159,11 +159,14 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
         ContactMaterial{specs_[i].friction.vessel_static, specs_[i].friction.vessel_dynamic}, 0.0);
     // Quasi-static: each node and frame only as heavy as the explicit step needs (physics.md 5.4),
     // and a second set for the fine steps of a fast hand.
-    RodModel fine = inst.model;
-    scale_for_time_step(fine, sc_.dt / sc_.fine_steps, kQuasiStaticKpRatio);
+    MassSet& other = other_masses_.emplace_back();
+    if (sc_.fine_steps > 1) {
+      RodModel fine = inst.model;
+      scale_for_time_step(fine, sc_.dt / sc_.fine_steps, kQuasiStaticKpRatio);
+      other = {std::move(fine.node_mass), std::move(fine.inv_mass), std::move(fine.inertia),
+               std::move(fine.inv_inertia)};
+    }
     scale_for_time_step(inst.model, sc_.dt, kQuasiStaticKpRatio);
-    other_masses_.push_back({std::move(fine.node_mass), std::move(fine.inv_mass),
-                             std::move(fine.inertia), std::move(fine.inv_inertia)});
     insts_.push_back(std::move(inst));
   }
   for (std::size_t i = 0; i < sc_.instruments.size(); ++i) {
