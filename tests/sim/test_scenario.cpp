@@ -43,7 +43,7 @@ TEST(Scenario, DefaultParses) {
   EXPECT_DOUBLE_EQ(sc.fluoro.fps, 15.0);
   EXPECT_FALSE(sc.autopilot.empty());
   EXPECT_DOUBLE_EQ(sc.sheath_length, 25e-3);
-  EXPECT_FALSE(sc.instruments[1].rim) << "the J wire's withdrawal: see docs/validation.md";
+  EXPECT_FALSE(sc.instruments[1].rim) << "why the default keeps the rim off: docs/physics.md 7.1";
   EXPECT_EQ(sc.fine_steps, 4);
   EXPECT_DOUBLE_EQ(sc.fine_step_speed, 0.13);
 }
