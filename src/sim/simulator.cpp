@@ -285,6 +285,8 @@ void Simulator::step(const DeviceCommands& cmds) {
   const int n = fine_ ? sc_.fine_steps : 1;
   settings_.rod.dt = dt / n;
   set_quasi_static_damping(settings_.rod);
+  std::fill(fine_force_.begin(), fine_force_.end(), 0.0);
+  std::fill(fine_torque_.begin(), fine_torque_.end(), 0.0);
   for (int k = 1; k <= n; ++k) {
     // The hand's command spread evenly over the fine steps: a position k / n of the way there.
     for (std::size_t i = 0; i < insts_.size(); ++i) {
@@ -299,9 +301,8 @@ void Simulator::step(const DeviceCommands& cmds) {
     if (beating_wall_) beating_wall_->set_time(time_ + dt * k / n);
     step_instruments(insts_, couplings_, wall_, settings_, sub_drive_);
     for (std::size_t i = 0; i < insts_.size(); ++i) {
-      const DriveState& ds = insts_[i].drive;
-      fine_force_[i] = (k == 1 ? 0.0 : fine_force_[i]) + ds.axial_force_raw / n;
-      fine_torque_[i] = (k == 1 ? 0.0 : fine_torque_[i]) + ds.torque_raw / n;
+      fine_force_[i] += insts_[i].drive.axial_force_raw / n;
+      fine_torque_[i] += insts_[i].drive.torque_raw / n;
     }
   }
   // The hand force of a split step is its fine steps' mean: the step's impulse over dt, as a
