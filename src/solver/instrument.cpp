@@ -285,9 +285,14 @@ bool beyond_tip(const RodModel& outer, int best, double t) {
 
 // Calls f(i, k, past) for every free inner node i inside the outer instrument's inserted length,
 // with k the outer edge at the same inserted arc length, and for the next ones within
-// kMouthSlack beyond it (past = true): on the outside of the curves the wire's path is longer than
-// the catheter's centreline, so such a node can already lie inside the lumen.
-constexpr double kMouthSlack = 3e-3;
+// kMouthSlack beyond it (past = true): the wire's path is longer than the catheter's centreline,
+// so such a node can still lie inside the lumen. On the outside of the curves the excess is up to
+// the clearance times the angle turned (0.7 mm x 3 pi through the arch), and a pushed wire snakes
+// in the lumen: the default run's coronary wire had nodes 4.4 mm past the guide's inserted length
+// still 0.2 mm short of its mouth. Where the window was 3 mm such a node went free, drifted into
+// the wall next to the rim and the rim contact then met it 2 r_w deep in one step (physics.md
+// 7.1). Only geometry decides (in the lumen, next to a coupled node, not beyond the tip).
+constexpr double kMouthSlack = 10e-3;
 template <class F>
 void for_each_sheathed(const Instrument& in, const Instrument& out, F&& f) {
   const RodModel& mi = in.model;
@@ -343,11 +348,19 @@ void add_rim_contact(Coupling& cp, const Instrument& in, const Instrument& out,
     const Vec3 away = x0 + a * e - lip;  // from the rim point to the edge
     const double dist = away.norm();
     if (dist < 1e-12) continue;
-    // Side: in the (axis, u) plane the wire runs outward along the edge; the rim point must lie
-    // to the wall's side of it, cross(edge, lip - x0) > 0 in (h, rho) coordinates.
-    const double eh = e.dot(axis), er = e.dot(u);
-    const double lh = (lip - x0).dot(axis), lr = (lip - x0).dot(u);
-    const bool in_front = eh * lr - er * lh > 0.0;
+    // Side: in the (axis, u) plane, (h, rho) about the tip, the edge cuts through the wall when it
+    // crosses the wall's line rho = R behind the rim (h < 0). Where it crosses at h = 0 it passes
+    // through the rim point itself (dist = 0), so the gap's sign flips only where its size is
+    // zero. (The side of the edge's line that the rim point lies on decided before; with the
+    // nearest point clamped to x1 that line runs on past x1, and an edge ending inside the lumen
+    // just short of the rim read as a cut 2 dist deep: a 0.35 mm push in one step, physics.md 7.1.)
+    const double h0 = (x0 - tip).dot(axis), q0 = (x0 - tip).dot(u);
+    const double h1 = (x1 - tip).dot(axis), q1 = r1.norm();
+    bool in_front = true;
+    if ((q0 - rim) * (q1 - rim) < 0.0) {
+      const double s = (rim - q0) / (q1 - q0);
+      in_front = h0 + s * (h1 - h0) >= 0.0;
+    }
     const double r_w = mi.outer_radius[j];
     if (!in_front && dist > r_w) continue;  // not a shallow cut: far from the rim, or past it
     const double sd = in_front ? dist : -dist;

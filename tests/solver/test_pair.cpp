@@ -298,6 +298,96 @@ TEST(Pair, AWireNodeIsPairedWithTheCatheterItLiesInWhereTheCatheterLoops) {
   EXPECT_GT(inside, 20) << "the wire is inside the catheter";
 }
 
+namespace {
+
+// The wire of a StraightPair pushed in `past` beyond the catheter's inserted length yet bunched up
+// inside it: its inserted nodes on the axis, their depths scaled by `squeeze`.
+void squeeze_wire(StraightPair& p, double squeeze) {
+  Instrument& w = p.insts[0];
+  for (int i = w.drive.first_free; i < w.model.n; ++i) {
+    const double sigma = w.model.node_s[i] - (w.model.length - w.drive.depth);
+    if (sigma > 0.0) w.state.x[i] = Vec3(0.0, 0.0, squeeze * sigma);
+  }
+}
+
+}  // namespace
+
+// A pushed wire snakes in its catheter's lumen, and on the outside of the curves its path is
+// longer than the catheter's centreline: in the default run the coronary wire had nodes 4.4 mm past
+// the guide's inserted length (by arc length) still 0.2 mm short of its mouth. Such a node lies in
+// the lumen and is held there like any other; left free (the coupling looked 3 mm past), it
+// drifted into the guide's wall next to the rim (physics.md 7.1).
+TEST(Pair, AWireNodePastTheCathetersLengthButInItsLumenIsHeld) {
+  StraightPair p(0.069, 0.06);     // the wire's tip 9 mm past the catheter's, by arc length
+  squeeze_wire(p, 0.058 / 0.069);  // and 2 mm short of the catheter's tip
+  SolverSettings s;
+  s.rod.dt = 1e-3;
+  const DriveCommand cmds[2] = {};
+  step_instruments(p.insts, p.cps, nullptr, s, cmds);
+  const Instrument& w = p.insts[0];
+  for (int i = w.drive.first_free; i < w.model.n; ++i) {
+    const double sigma = w.model.node_s[i] - (w.model.length - w.drive.depth);
+    if (sigma > 1e-3) {
+      EXPECT_TRUE(w.sheathed[i]) << "node " << i << " at " << sigma * 1e3 << " mm";
+    }
+  }
+}
+
+// The rim contact (physics.md 7.1) of the edge from the last coupled wire node x0 to the next, x1,
+// with x1 in the lumen 0.1 mm short of the tip plane and 0.05 mm inside the lumen radius R: the
+// edge does not reach the rim, and the nearest point to the rim point L is x1 (at 0.112 mm, less
+// than the wire's radius r_w: a contact of excess r_w - 0.112 mm). The edge's line runs on past
+// x1 behind L; the side of that line L lies on is not what decides a cut, and read as one it came
+// out r_w + 0.112 mm deep, a push of a third of a millimetre in one step (the default run's
+// coronary wire, a 1.2 N spike at the hand).
+TEST(Pair, TheRimContactOfAnEdgeEndingInsideTheLumenIsNotACut) {
+  // Which node is the last one coupled: the wire's tip 30 mm past the catheter's by arc length,
+  // all of it squeezed into the lumen; the coupling looks a few millimetres past.
+  int last = -1;
+  {
+    StraightPair p(0.09, 0.06);
+    squeeze_wire(p, 0.058 / 0.09);
+    SolverSettings s;
+    s.rod.dt = 1e-3;
+    const DriveCommand cmds[2] = {};
+    step_instruments(p.insts, p.cps, nullptr, s, cmds);
+    for (int i = p.insts[0].drive.first_free; i + 1 < p.insts[0].model.n; ++i)
+      if (p.insts[0].sheathed[i] && !p.insts[0].sheathed[i + 1]) last = i;
+  }
+  ASSERT_GT(last, 0);
+  StraightPair p(0.09, 0.06);
+  squeeze_wire(p, 0.058 / 0.09);
+  Instrument& w = p.insts[0];
+  const double tip = 0.06, lumen = p.cd.inner_radius, r_w = p.wd.outer_radius;
+  // Pull the squeezed wire back 1 mm from the tip plane, then x0 on the axis 1 mm behind the tip
+  // plane and x1 as above; the nodes past x1 go straight on out of the mouth.
+  for (int i = w.drive.first_free; i < last; ++i)
+    w.state.x[i].z() = std::min(w.state.x[i].z(), tip - 1.2e-3);
+  w.state.x[last] = Vec3(0.0, 0.0, tip - 1.0e-3);
+  const Vec3 x1(lumen - 0.05e-3, 0.0, tip - 0.1e-3);
+  for (int i = last + 1; i < w.model.n; ++i)
+    w.state.x[i] = x1 + static_cast<double>(i - last - 1) * Vec3(0.6e-3, 0.0, 1.5e-3);
+  // The edge's line passes behind the rim point: at the tip plane it is outside the lumen radius.
+  const Vec3 e = w.state.x[last + 1] - w.state.x[last];
+  ASSERT_GT(x1.x() + e.x() * (tip - x1.z()) / e.z(), lumen);
+  SolverSettings s;
+  s.rod.dt = 1e-3;
+  const DriveCommand cmds[2] = {};
+  step_instruments(p.insts, p.cps, nullptr, s, cmds);
+  ASSERT_TRUE(w.sheathed[last]);
+  ASSERT_FALSE(w.sheathed[last + 1]);
+  const double dist = (x1 - Vec3(lumen, 0.0, tip)).norm();
+  int rims = 0;
+  for (const CoaxialContact& cc : p.cps[0].contacts) {
+    if (cc.a <= 0.0 || cc.node != last) continue;
+    ++rims;
+    EXPECT_NEAR(cc.excess, r_w - dist, 1e-9) << "in front of the rim, " << dist * 1e3 << " mm off";
+    EXPECT_GT(cc.normal.x(), 0.0)
+        << "from the edge toward the rim: the wire is pushed off it, inward";
+  }
+  EXPECT_EQ(rims, 1);
+}
+
 // Force feedback (issue 4): the part of a concentric impulse that puts a wire node back inside
 // the lumen is a position fix-up, not a load, and the hands do not feel it, nor the lumen
 // friction it allows. A straight wire slides through a straight catheter on the sheath axis (no
