@@ -8,6 +8,7 @@
 
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <string>
 #include <vector>
@@ -132,6 +133,34 @@ struct SphereContact {
   Vec3 point = Vec3::Zero();    // closest wall point, m
   int triangle = -1;            // triangle holding `point`
   int num_touching = 0;         // triangles overlapping the sphere
+  // The sums the result came from, so that queries of the parts of one wall can be merged into
+  // the query of the whole (SphereContactMerge): the closest feature's pseudo-normal over the
+  // part's faces at it, and the overlapping faces' normals weighted by depth times area.
+  Vec3 side_sum = Vec3::Zero();
+  Vec3 normal_sum = Vec3::Zero();
+  double weight_sum = 0.0;
+};
+
+// One sphere's queries against disjoint parts of one wall (a beating lumen's patches), merged into
+// what the query of the whole wall gives. A vertex or edge on the seam between parts has faces in
+// each, so each part alone sees only some of them: its pseudo-normal there can point the wrong
+// way, and the closest part alone read a centre 1.7 mm inside the lumen as 2.7 mm behind the wall
+// (a variant of the default run: its guide at the left main, anatomy.md). Merging sums the parts'
+// pseudo-normals at the closest feature (all parts equally close within rounding) and their
+// weighted normals, then decides side, depth and normal as one query does.
+class SphereContactMerge {
+ public:
+  // A part's answer; `triangle` replaces part.triangle (the part's local index) in the result.
+  void add(const SphereContact& part, int triangle);
+  SphereContact result(const Vec3& centre, double radius) const;
+
+ private:
+  double d_min_ = std::numeric_limits<double>::infinity();
+  Vec3 point_ = Vec3::Zero();
+  int triangle_ = -1;
+  Vec3 side_ = Vec3::Zero(), normal_sum_ = Vec3::Zero(), fallback_ = Vec3::Zero();
+  double weight_ = 0.0;
+  int touching_ = 0;
 };
 
 struct SphereQuerySettings {

@@ -409,18 +409,12 @@ void BeatingLumen::query_spheres(std::span<const Vec3> centres, std::span<const 
   const PatchGrid* grid = phase_grids_.empty() ? nullptr : &phase_grids_[last_grid_];
   for (std::size_t i = 0; i < centres.size(); ++i) {
     const double rad = radii.size() == 1 ? radii[0] : radii[i];
-    SphereContact best;
-    best.distance = 1e300;
-    int touching = 0;
+    // The patches' answers merged into the whole wall's: the closest wall point decides the
+    // side, with the pseudo-normal of every patch it belongs to (a seam vertex or edge).
+    SphereContactMerge merge;
     auto consider = [&](const Patch& p) {
       const SphereContact sc = p.tree.query_sphere(p.mesh, centres[i], rad, settings);
-      if (!sc.touching) return;
-      touching += sc.num_touching;
-      // The closest wall point decides the side, as for a single tree over the whole wall.
-      if (sc.distance < best.distance) {
-        best = sc;
-        best.triangle = p.global_triangle[sc.triangle];
-      }
+      if (sc.triangle >= 0) merge.add(sc, p.global_triangle[sc.triangle]);
     };
     if (!static_.global_triangle.empty()) consider(static_);
     if (grid) {
@@ -432,9 +426,9 @@ void BeatingLumen::query_spheres(std::span<const Vec3> centres, std::span<const 
         consider(p);
       });
     }
-    if (touching == 0) best = SphereContact{};
-    best.num_touching = touching;
-    out[i] = best;
+    const SphereContact merged = merge.result(centres[i], rad);
+    // As before the merge: a sphere that overlaps no triangle is not in contact.
+    out[i] = merged.num_touching > 0 ? merged : SphereContact{};
   }
 }
 

@@ -327,7 +327,8 @@ void AabbTree::refit(const TriangleMesh& mesh) {
 //    the wall) or if the mean cancels (a sphere wedged between opposite walls).
 namespace {
 
-SphereContact finish(const TriangleMesh& mesh, const Accumulator& acc, const Vec3& centre,
+// Side, depth and normal from a query's sums; `fallback` is the normal where both sums vanish.
+SphereContact decide(const Accumulator& acc, const Vec3& fallback, const Vec3& centre,
                      double radius) {
   SphereContact out;
   if (acc.triangle < 0) return out;
@@ -335,6 +336,9 @@ SphereContact finish(const TriangleMesh& mesh, const Accumulator& acc, const Vec
   out.point = acc.point;
   out.triangle = acc.triangle;
   out.num_touching = acc.touching;
+  out.side_sum = acc.pseudo_normal;
+  out.normal_sum = acc.weighted_normal;
+  out.weight_sum = acc.weight_sum;
   // Walls equally near on opposite sides (a centre on a tube's axis) cancel each other's
   // pseudo-normals: such a centre is between walls, hence inside. A centre behind a wall is
   // nearest to that wall alone, whose pseudo-normal does not cancel.
@@ -349,9 +353,14 @@ SphereContact finish(const TriangleMesh& mesh, const Accumulator& acc, const Vec
   } else if (acc.pseudo_normal.norm() > 0.0) {
     out.normal = acc.pseudo_normal.normalized();
   } else {
-    out.normal = mesh.normals[acc.triangle];
+    out.normal = fallback;
   }
   return out;
+}
+
+SphereContact finish(const TriangleMesh& mesh, const Accumulator& acc, const Vec3& centre,
+                     double radius) {
+  return decide(acc, acc.triangle >= 0 ? mesh.normals[acc.triangle] : Vec3::Zero(), centre, radius);
 }
 
 }  // namespace
@@ -426,6 +435,42 @@ SphereContact AabbTree::query_sphere(const TriangleMesh& mesh, const Vec3& centr
     }
   }
   return finish(mesh, acc, centre, radius);
+}
+
+void SphereContactMerge::add(const SphereContact& part, int triangle) {
+  if (part.triangle < 0) return;  // nothing of this part within reach
+  const double d = part.distance;
+  // The parts' closest features tie when they are one seam vertex or edge: the same tolerance
+  // as between the triangles of one query.
+  const double tie = 1e-12 + 1e-10 * d;
+  if (d < d_min_ - tie) {
+    side_ = Vec3::Zero();
+    fallback_ = part.normal;
+  }
+  if (d <= d_min_ + tie) {
+    side_ += part.side_sum;
+    if (d < d_min_) {
+      d_min_ = d;
+      point_ = part.point;
+      triangle_ = triangle;
+      if (fallback_ == Vec3::Zero()) fallback_ = part.normal;
+    }
+  }
+  normal_sum_ += part.normal_sum;
+  weight_ += part.weight_sum;
+  touching_ += part.num_touching;
+}
+
+SphereContact SphereContactMerge::result(const Vec3& centre, double radius) const {
+  Accumulator acc;
+  acc.d_min = d_min_;
+  acc.point = point_;
+  acc.triangle = triangle_;
+  acc.pseudo_normal = side_;
+  acc.weighted_normal = normal_sum_;
+  acc.weight_sum = weight_;
+  acc.touching = touching_;
+  return decide(acc, fallback_, centre, radius);
 }
 
 void AabbTree::query_spheres(const TriangleMesh& mesh, std::span<const Vec3> centres,

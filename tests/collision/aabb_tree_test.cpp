@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <random>
 
 namespace vcsim {
@@ -139,6 +140,67 @@ TEST(AabbTree, SphereQueriesMatchBruteForce) {
   // The sample exercises all cases.
   EXPECT_GT(touching, 300);
   EXPECT_GT(outside, 50);
+}
+
+// A wall split into parts with a tree each (a beating lumen's patches): the parts' answers for a
+// sphere, merged (SphereContactMerge), are the whole mesh's. The parts interleave (triangle index
+// mod 3), so nearly every closest vertex and edge lies on a seam.
+TEST(AabbTree, MergedQueriesOfAWallsPartsAreTheWholeWalls) {
+  BenchTube t;
+  constexpr int kParts = 3;
+  std::array<TriangleMesh, kParts> parts;
+  std::array<std::vector<int>, kParts> global;
+  for (int p = 0; p < kParts; ++p) parts[p].vertices = t.m.vertices;
+  for (int tri = 0; tri < t.m.num_triangles(); ++tri) {
+    parts[tri % kParts].triangles.push_back(t.m.triangles[tri]);
+    parts[tri % kParts].normals.push_back(t.m.normals[tri]);
+    global[tri % kParts].push_back(tri);
+  }
+  std::array<AabbTree, kParts> trees;
+  for (int p = 0; p < kParts; ++p) trees[p].build(parts[p]);
+  const BentTubeSpec spec = bench_like_spec();
+  const auto line =
+      bent_centreline(spec.straight1, spec.bend_radius, spec.bend_angle, spec.straight2, 1e-5);
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<std::size_t> pick(0, line.size() - 1);
+  std::normal_distribution<double> offset(0.0, spec.radius * 0.7);
+  std::uniform_real_distribution<double> radius(0.2e-3, 2e-3);
+  int touching = 0, outside = 0, single_part_wrong = 0;
+  for (int i = 0; i < 2000; ++i) {
+    const Vec3 c = line[pick(rng)] + Vec3(offset(rng), offset(rng), offset(rng));
+    const double r = radius(rng);
+    const SphereContact want = t.tree.query_sphere(t.m, c, r);
+    SphereContactMerge merge;
+    for (int p = 0; p < kParts; ++p) {
+      const SphereContact part = trees[p].query_sphere(parts[p], c, r);
+      if (part.triangle >= 0) merge.add(part, global[p][part.triangle]);
+    }
+    const SphereContact got = merge.result(c, r);
+    ASSERT_EQ(got.touching, want.touching) << i;
+    EXPECT_NEAR(got.distance, want.distance, 1e-15);
+    if (!want.touching) continue;
+    ++touching;
+    outside += want.centre_outside;
+    ASSERT_EQ(got.centre_outside, want.centre_outside) << i;
+    EXPECT_NEAR(got.depth, want.depth, 1e-15);
+    EXPECT_NEAR((got.normal - want.normal).norm(), 0.0, 1e-12) << i;
+    EXPECT_EQ(got.num_touching, want.num_touching);
+    // What the closest part alone says (as before the merge): another normal where the sphere
+    // overlaps the faces of more than one part.
+    int best = -1;
+    SphereContact alone;
+    for (int p = 0; p < kParts; ++p) {
+      const SphereContact part = trees[p].query_sphere(parts[p], c, r);
+      if (part.touching && (best < 0 || part.distance < alone.distance)) {
+        alone = part;
+        best = p;
+      }
+    }
+    single_part_wrong += (alone.normal - want.normal).norm() > 1e-6;
+  }
+  EXPECT_GT(touching, 400);
+  EXPECT_GT(outside, 50);
+  EXPECT_GT(single_part_wrong, 100) << "the sample needs the merge";
 }
 
 TEST(AabbTree, BatchQueryEqualsSingleQueries) {
