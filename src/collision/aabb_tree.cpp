@@ -443,17 +443,14 @@ void SphereContactMerge::add(const SphereContact& part, int triangle) {
   // The parts' closest features tie when they are one seam vertex or edge: the same tolerance
   // as between the triangles of one query.
   const double tie = 1e-12 + 1e-10 * d;
-  if (d < d_min_ - tie) {
-    side_ = Vec3::Zero();
-    fallback_ = part.normal;
-  }
+  if (d < d_min_ - tie) side_ = Vec3::Zero();
   if (d <= d_min_ + tie) {
     side_ += part.side_sum;
     if (d < d_min_) {
       d_min_ = d;
       point_ = part.point;
       triangle_ = triangle;
-      if (fallback_ == Vec3::Zero()) fallback_ = part.normal;
+      fallback_ = part.normal;
     }
   }
   normal_sum_ += part.normal_sum;

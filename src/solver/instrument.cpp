@@ -288,10 +288,11 @@ bool beyond_tip(const RodModel& outer, int best, double t) {
 // kMouthSlack beyond it (past = true): the wire's path is longer than the catheter's centreline,
 // so such a node can still lie inside the lumen. On the outside of the curves the excess is up to
 // the clearance times the angle turned (0.7 mm x 3 pi through the arch), and a pushed wire snakes
-// in the lumen: the default run's coronary wire had nodes 4.4 mm past the guide's inserted length
-// still 0.2 mm short of its mouth. Where the window was 3 mm such a node went free, drifted into
-// the wall next to the rim and the rim contact then met it 2 r_w deep in one step (physics.md
-// 7.1). Only geometry decides (in the lumen, next to a coupled node, not beyond the tip).
+// in the lumen: in a variant of the default run the coronary wire had nodes 4.4 mm past the
+// guide's inserted length still 0.2 mm short of its mouth. Where the window was 3 mm such a node
+// went free, drifted into the wall next to the rim and the rim contact then met it 2 r_w deep in
+// one step (physics.md 7.1). Only geometry decides (in the lumen, next to a coupled node, not
+// beyond the tip).
 constexpr double kMouthSlack = 10e-3;
 template <class F>
 void for_each_sheathed(const Instrument& in, const Instrument& out, F&& f) {
@@ -353,7 +354,8 @@ void add_rim_contact(Coupling& cp, const Instrument& in, const Instrument& out,
     // through the rim point itself (dist = 0), so the gap's sign flips only where its size is
     // zero. (The side of the edge's line that the rim point lies on decided before; with the
     // nearest point clamped to x1 that line runs on past x1, and an edge ending inside the lumen
-    // just short of the rim read as a cut 2 dist deep: a 0.35 mm push in one step, physics.md 7.1.)
+    // just short of the rim read as a cut r_w + dist deep: a 0.35 mm push in one step,
+    // physics.md 7.1.)
     const double h0 = (x0 - tip).dot(axis), q0 = (x0 - tip).dot(u);
     const double h1 = (x1 - tip).dot(axis), q1 = r1.norm();
     bool in_front = true;
