@@ -499,6 +499,7 @@ int cmd_run(const RunOptions& o) {
   j["physics_real_time_factor"] = m.wall_time > 0 ? m.sim_time / m.wall_time : 0.0;
   j["steps"] = m.steps;
   j["rollbacks"] = m.rollbacks;
+  j["resplit_steps"] = m.resplit_steps;
   j["frames"] = frames;
   j["fluoroscopy_time_s"] = frames * frame_dt;
   j["contrast_volume_ml"] = m.contrast_volume;

@@ -140,11 +140,19 @@ struct Scenario {
   // The introducer sheath's straight part inside the vessel from the access point (m; 0: none),
   // its lumen 0.2 mm wider than the widest instrument (physics.md 6.2).
   double sheath_length = 25e-3;
-  // While a hand moves faster than fine_step_speed (m/s), each step is split into fine_steps
-  // steps, with the masses scaled for the shorter step (physics.md 5.4): the scaled inertia of a
-  // fast pull goes as the step squared. 1: never split.
-  int fine_steps = 4;
+  // While a hand moves faster than fine_step_speed (m/s), each step is split into as many steps
+  // as keep the hand's travel per step within fine_step_travel (m), at least 2 and at most
+  // fine_steps, with the masses scaled for the shorter step (physics.md 5.4): the scaled inertia
+  // of a fast pull grows with the travel per step. fine_steps 1: never split.
+  int fine_steps = 8;
   double fine_step_speed = 0.13;
+  double fine_step_travel = 25e-6;
+  // A step after which a hand force has changed by more than fine_step_jump (N) is taken again
+  // split at least twice as finely (and at least as for a hand at fine_step_speed; at most
+  // fine_steps), and steps stay split so for fine_step_hold (s): a scaled mass stopped or let go
+  // suddenly (physics.md 5.4). 0: never.
+  double fine_step_jump = 0.3;
+  double fine_step_hold = 0.02;
   std::vector<ScenarioInstrument> instruments;
   std::string timeline;  // timeline file (relative to the scenario's folder); "" = autopilot
   std::vector<AutopilotPhase> autopilot;
@@ -203,6 +211,8 @@ struct SimMetrics {
   std::vector<LandmarkRecord> landmarks;
   double contrast_volume = 0.0;  // ml injected
   int rollbacks = 0;             // steps that produced a non-finite value and were undone
+  // Steps taken again split after a sudden change of a hand force (Scenario::fine_step_jump).
+  std::int64_t resplit_steps = 0;
 };
 
 class Simulator {
@@ -234,6 +244,8 @@ class Simulator {
   TreeHit tip_location(int i) const;
   // Inserted depth of an instrument (m).
   double depth(int i) const { return insts_[i].drive.depth; }
+  // How many fine steps the last step was split into (1: none; physics.md 5.4).
+  int split() const { return split_; }
   // Contrast concentration per segment (fraction of 350 mgI/ml).
   const std::vector<float>& contrast() const { return contrast_.concentration(); }
   const SimMetrics& metrics() const { return metrics_; }
@@ -248,8 +260,15 @@ class Simulator {
   void update_metrics(const std::vector<Vec3>& old_tips);
   // The fastest hand this step's commands ask for (m/s).
   double hand_speed() const;
-  // Swaps every instrument's masses and inertias with the set scaled for the other step size.
-  void swap_masses();
+  // How many fine steps a step at this hand speed is split into (1: not split).
+  int split_for(double speed) const;
+  // The split of a hand at fine_step_speed (at least 2).
+  int threshold_split() const;
+  // The instruments over one step of dt, in split_ fine steps; the hand force is their mean.
+  void advance();
+  // Puts in every instrument's masses and inertias for steps of dt / n (kept momentum where a
+  // mass grows, kept velocity where it shrinks).
+  void use_masses(int n);
 
   // An instrument's masses and inertias (RodModel's fields of the same names).
   struct MassSet {
@@ -272,8 +291,12 @@ class Simulator {
   SolverSettings settings_;
   std::vector<DriveCommand> drive_;
   std::vector<DriveCommand> sub_drive_;  // (instrument) the hand's command for one fine step
-  std::vector<MassSet> other_masses_;    // (instrument) scaled for the step the run is not using
-  bool fine_ = false;                    // steps are split (fine_steps) and use the fine masses
+  // (n - 1, instrument) the masses scaled for steps of dt / n, n = 1 .. fine_steps (n = 1: the
+  // scenario's step), built once.
+  std::vector<std::vector<MassSet>> masses_;
+  int split_ = 1;  // the steps are split into split_ fine steps and use masses_[split_ - 1]
+  double hold_until_ = -1.0;  // s: steps before this stay split at least held_split_ times
+  int held_split_ = 1;        // (a sudden load)
   std::vector<double> fine_force_, fine_torque_;  // (instrument) hand force summed over them
   std::vector<RodState> backup_;
   std::vector<DriveState> backup_drive_;

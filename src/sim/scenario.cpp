@@ -112,6 +112,9 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
     sc.fine_steps = static_cast<int>(n);
   }
   sc.fine_step_speed = f.in_range_or("fine_step_speed_mm_s", 0.0, 1000.0, 130.0) * kMm;
+  sc.fine_step_travel = f.in_range_or("fine_step_travel_um", 0.0, 1000.0, 25.0) * 1e-6;
+  sc.fine_step_jump = f.nonnegative_or("fine_step_jump_n", 0.3);
+  sc.fine_step_hold = f.in_range_or("fine_step_hold_ms", 0.0, 1000.0, 20.0) * 1e-3;
 
   const Json& insts = f.array("instruments");
   if (insts.empty()) f.fail("instruments", "expected at least one instrument");

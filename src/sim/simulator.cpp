@@ -158,13 +158,13 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
         def, sheath,
         ContactMaterial{specs_[i].friction.vessel_static, specs_[i].friction.vessel_dynamic}, 0.0);
     // Quasi-static: each node and frame only as heavy as the explicit step needs (physics.md 5.4),
-    // and a second set for the fine steps of a fast hand.
-    MassSet& other = other_masses_.emplace_back();
-    if (sc_.fine_steps > 1) {
-      RodModel fine = inst.model;
-      scale_for_time_step(fine, sc_.dt / sc_.fine_steps, kQuasiStaticKpRatio);
-      other = {std::move(fine.node_mass), std::move(fine.inv_mass), std::move(fine.inertia),
-               std::move(fine.inv_inertia)};
+    // for the scenario's step and for each split of it a fast hand may use.
+    masses_.resize(static_cast<std::size_t>(std::max(1, sc_.fine_steps)));
+    for (int k = 1; k <= std::max(1, sc_.fine_steps); ++k) {
+      RodModel md = inst.model;
+      scale_for_time_step(md, sc_.dt / k, kQuasiStaticKpRatio);
+      masses_[k - 1].push_back({std::move(md.node_mass), std::move(md.inv_mass),
+                                std::move(md.inertia), std::move(md.inv_inertia)});
     }
     scale_for_time_step(inst.model, sc_.dt, kQuasiStaticKpRatio);
     insts_.push_back(std::move(inst));
@@ -277,45 +277,30 @@ void Simulator::step(const DeviceCommands& cmds) {
                            : d.translation <= 0.0 && d.rotation == 0.0;
     insts_[i].parked = ds.depth <= 0.0 && still;
   }
-  // A fast hand: fine steps with the masses for them (physics.md 5.4), from above
-  // fine_step_speed until the hands are below half of it.
-  const double speed = hand_speed();
-  const bool fine = sc_.fine_steps > 1 && speed > (fine_ ? 0.5 : 1.0) * sc_.fine_step_speed;
-  if (fine != fine_) swap_masses();
-  const int n = fine_ ? sc_.fine_steps : 1;
-  settings_.rod.dt = dt / n;
-  set_quasi_static_damping(settings_.rod);
-  std::fill(fine_force_.begin(), fine_force_.end(), 0.0);
-  std::fill(fine_torque_.begin(), fine_torque_.end(), 0.0);
-  for (int k = 1; k <= n; ++k) {
-    // The hand's command spread evenly over the fine steps: a position k / n of the way there.
+  // A fast hand: fine steps with the masses for them (physics.md 5.4).
+  use_masses(split_for(hand_speed()));
+  advance();
+  // A sudden load on a hand (a scaled mass stopped or let go): the step is taken again, split
+  // at least twice as finely, and that split held for a while (physics.md 5.4).
+  if (split_ < sc_.fine_steps && sc_.fine_step_jump > 0.0) {
+    bool sudden = false;
     for (std::size_t i = 0; i < insts_.size(); ++i) {
-      DriveCommand& c = sub_drive_[i];
-      c = drive_[i];
-      if (c.mode == DriveCommand::Mode::kPosition && k < n) {
-        const DriveState& start = backup_drive_[i];
-        c.translation = start.depth + (drive_[i].translation - start.depth) * k / n;
-        c.rotation = start.roll + (drive_[i].rotation - start.roll) * k / n;
-      }
+      const Instrument& in = insts_[i];
+      const bool inserted = !in.parked && in.drive.depth > 0.0 && backup_drive_[i].depth > 0.0;
+      sudden = sudden ||
+               (inserted && std::abs(in.drive.axial_force_raw - backup_drive_[i].axial_force_raw) >
+                                sc_.fine_step_jump);
     }
-    if (beating_wall_) beating_wall_->set_time(time_ + dt * k / n);
-    step_instruments(insts_, couplings_, wall_, settings_, sub_drive_);
-    for (std::size_t i = 0; i < insts_.size(); ++i) {
-      fine_force_[i] += insts_[i].drive.axial_force_raw / n;
-      fine_torque_[i] += insts_[i].drive.torque_raw / n;
-    }
-  }
-  // The hand force of a split step is its fine steps' mean: the step's impulse over dt, as a
-  // sensor that integrates over the step reads it. (The low-pass, if any, ran on the fine steps.)
-  if (n > 1) {
-    for (std::size_t i = 0; i < insts_.size(); ++i) {
-      DriveState& ds = insts_[i].drive;
-      ds.axial_force_raw = fine_force_[i];
-      ds.torque_raw = fine_torque_[i];
-      if (settings_.feedback_cutoff_hz <= 0.0) {
-        ds.axial_force = ds.axial_force_raw;
-        ds.torque = ds.torque_raw;
+    if (sudden) {
+      for (std::size_t i = 0; i < insts_.size(); ++i) {
+        insts_[i].state = backup_[i];
+        insts_[i].drive = backup_drive_[i];
       }
+      hold_until_ = time_ + sc_.fine_step_hold;
+      held_split_ = std::min(sc_.fine_steps, std::max(2 * split_, threshold_split()));
+      use_masses(split_for(hand_speed()));
+      advance();
+      ++metrics_.resplit_steps;
     }
   }
 
@@ -405,25 +390,90 @@ double Simulator::hand_speed() const {
   return v;
 }
 
-void Simulator::swap_masses() {
-  fine_ = !fine_;
+void Simulator::advance() {
+  const double dt = sc_.dt;
+  const int n = split_;
+  settings_.rod.dt = dt / n;
+  set_quasi_static_damping(settings_.rod);
+  std::fill(fine_force_.begin(), fine_force_.end(), 0.0);
+  std::fill(fine_torque_.begin(), fine_torque_.end(), 0.0);
+  for (int k = 1; k <= n; ++k) {
+    // The hand's command spread evenly over the fine steps: a position k / n of the way there.
+    for (std::size_t i = 0; i < insts_.size(); ++i) {
+      DriveCommand& c = sub_drive_[i];
+      c = drive_[i];
+      if (c.mode == DriveCommand::Mode::kPosition && k < n) {
+        const DriveState& start = backup_drive_[i];
+        c.translation = start.depth + (drive_[i].translation - start.depth) * k / n;
+        c.rotation = start.roll + (drive_[i].rotation - start.roll) * k / n;
+      }
+    }
+    if (beating_wall_) beating_wall_->set_time(time_ + dt * k / n);
+    step_instruments(insts_, couplings_, wall_, settings_, sub_drive_);
+    for (std::size_t i = 0; i < insts_.size(); ++i) {
+      fine_force_[i] += insts_[i].drive.axial_force_raw / n;
+      fine_torque_[i] += insts_[i].drive.torque_raw / n;
+    }
+  }
+  // The hand force of a split step is its fine steps' mean: the step's impulse over dt, as a
+  // sensor that integrates over the step reads it. (The low-pass, if any, ran on the fine steps.)
+  if (n > 1) {
+    for (std::size_t i = 0; i < insts_.size(); ++i) {
+      DriveState& ds = insts_[i].drive;
+      ds.axial_force_raw = fine_force_[i];
+      ds.torque_raw = fine_torque_[i];
+      if (settings_.feedback_cutoff_hz <= 0.0) {
+        ds.axial_force = ds.axial_force_raw;
+        ds.torque = ds.torque_raw;
+      }
+    }
+  }
+}
+
+int Simulator::threshold_split() const {
+  return std::clamp(
+      static_cast<int>(std::ceil(sc_.fine_step_speed * sc_.dt / sc_.fine_step_travel)), 2,
+      std::max(2, sc_.fine_steps));
+}
+
+int Simulator::split_for(double speed) const {
+  if (sc_.fine_steps <= 1) return 1;
+  // For a while after a sudden load: the split it asked for.
+  const int held = time_ < hold_until_ ? held_split_ : 1;
+  // A fast hand: split from above fine_step_speed until the hands are below half of it.
+  const bool fast = speed > (split_ > held ? 0.5 : 1.0) * sc_.fine_step_speed;
+  if (!fast) return held;
+  // As many fine steps as keep the hand's travel per fine step within fine_step_travel. A split
+  // is only made coarser once a quarter more speed would not need it, so a hand whose speed
+  // wavers about a boundary does not swap masses back and forth.
+  // (A hand's speed is read from its commands: 1e-6 of a step's travel is rounding.)
+  const double per = speed * sc_.dt / sc_.fine_step_travel - 1e-6;
+  int n = std::clamp(static_cast<int>(std::ceil(per)), 2, sc_.fine_steps);
+  if (n < split_ && std::ceil(1.25 * per) >= split_) n = split_;
+  return std::max(n, held);
+}
+
+void Simulator::use_masses(int n) {
+  if (n == split_) return;
   for (std::size_t i = 0; i < insts_.size(); ++i) {
     RodModel& md = insts_[i].model;
     RodState& st = insts_[i].state;
-    MassSet& o = other_masses_[i];
-    // Heavier (back to the coarse step): momentum is kept, so the switch takes energy out in
-    // both directions (lighter: the velocities are kept).
-    if (!fine_) {
-      for (int j = 0; j < md.n; ++j)
-        if (o.node_mass[j] > 0.0) st.v[j] *= md.node_mass[j] / o.node_mass[j];
-      for (int j = 0; j < md.m; ++j)
-        st.omega[j] = st.omega[j].cwiseProduct(md.inertia[j]).cwiseQuotient(o.inertia[j]);
-    }
-    std::swap(md.node_mass, o.node_mass);
-    std::swap(md.inv_mass, o.inv_mass);
-    std::swap(md.inertia, o.inertia);
-    std::swap(md.inv_inertia, o.inv_inertia);
+    const MassSet& to = masses_[n - 1][i];
+    // Where a mass grows the momentum is kept, where it shrinks the velocity: a change of split
+    // takes energy out either way, never puts it in.
+    for (int j = 0; j < md.n; ++j)
+      if (to.node_mass[j] > md.node_mass[j]) st.v[j] *= md.node_mass[j] / to.node_mass[j];
+    for (int j = 0; j < md.m; ++j)
+      for (int a = 0; a < 3; ++a)
+        if (to.inertia[j][a] > md.inertia[j][a])
+          st.omega[j][a] = st.omega[j][a] * md.inertia[j][a] / to.inertia[j][a];
+    // Same sizes: the copies reuse the model's storage (no allocation while stepping).
+    md.node_mass = to.node_mass;
+    md.inv_mass = to.inv_mass;
+    md.inertia = to.inertia;
+    md.inv_inertia = to.inv_inertia;
   }
+  split_ = n;
 }
 
 void Simulator::update_metrics(const std::vector<Vec3>& old_tips) {

@@ -44,8 +44,12 @@ TEST(Scenario, DefaultParses) {
   EXPECT_FALSE(sc.autopilot.empty());
   EXPECT_DOUBLE_EQ(sc.sheath_length, 25e-3);
   EXPECT_FALSE(sc.instruments[1].rim) << "why the default keeps the rim off: docs/physics.md 7.1";
+  // The default scenario keeps four fine steps at any fast hand and no re-split, for its
+  // autopilot (physics.md 5.4, validation.md 4).
   EXPECT_EQ(sc.fine_steps, 4);
   EXPECT_DOUBLE_EQ(sc.fine_step_speed, 0.13);
+  EXPECT_DOUBLE_EQ(sc.fine_step_travel, 1e-6);
+  EXPECT_EQ(sc.fine_step_jump, 0.0);
 }
 
 TEST(Scenario, UnitsAreConverted) {
@@ -60,6 +64,17 @@ TEST(Scenario, UnitsAreConverted) {
                      "t.json")
           .fine_step_speed,
       0.05);
+  EXPECT_EQ(sc.fine_steps, 8);  // what a scenario gets without the keys
+  EXPECT_DOUBLE_EQ(sc.fine_step_travel, 25e-6);
+  EXPECT_DOUBLE_EQ(sc.fine_step_jump, 0.3);
+  EXPECT_DOUBLE_EQ(sc.fine_step_hold, 0.02);
+  const Scenario split = parse_scenario(edit("\"name\": \"t\"",
+                                             "\"name\": \"t\", \"fine_step_travel_um\": 40, "
+                                             "\"fine_step_jump_n\": 0, \"fine_step_hold_ms\": 5"),
+                                        "t.json");
+  EXPECT_DOUBLE_EQ(split.fine_step_travel, 40e-6);
+  EXPECT_EQ(split.fine_step_jump, 0.0);
+  EXPECT_DOUBLE_EQ(split.fine_step_hold, 5e-3);
   EXPECT_DOUBLE_EQ(sc.dt, 1e-3);
   EXPECT_EQ(sc.autopilot[0].kind, AutopilotPhase::Kind::kNavigate);
 }
@@ -124,6 +139,12 @@ TEST(Scenario, BadInputNamesTheField) {
                  "fine_steps");
   expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"fine_step_speed_mm_s\": 0"),
                "fine_step_speed_mm_s");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"fine_step_travel_um\": 0"),
+               "fine_step_travel_um");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"fine_step_jump_n\": -1"),
+               "fine_step_jump_n");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"fine_step_hold_ms\": 2000"),
+               "fine_step_hold_ms");
   // Duplicated names would make commands ambiguous.
   expect_error(edit("\"catalogue\": \"wire-035-j3-hydrophilic\"}",
                     "\"catalogue\": \"wire-035-j3-hydrophilic\"}, {\"name\": \"wire\", "

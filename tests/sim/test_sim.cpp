@@ -146,9 +146,11 @@ TEST(Simulator, ScriptedPushFollowsTheIliacRoute) {
 // the wire's hand force from the median of its 11 neighbouring steps (N); `check` sees the
 // simulator after every step of the pull.
 template <class Check>
-double pull_j_into_catheter(int fine_steps, double pull, Check&& check) {
+double pull_j_into_catheter(int fine_steps, double pull, Check&& check, double jump = 0.0,
+                            std::int64_t* resplit = nullptr) {
   Scenario sc = test::jl4_with_j_wire(256, false);
   sc.fine_steps = fine_steps;
+  sc.fine_step_jump = jump;
   Simulator sim(sc);
   DeviceCommands cmds = test::jl4_with_j_wire_commands();
   constexpr double kCath = 0.25, kOut = 0.04, kIn = 0.08, kAccel = 3.0, kBack = 0.1;
@@ -170,6 +172,7 @@ double pull_j_into_catheter(int fine_steps, double pull, Check&& check) {
     check(sim);
   }
   EXPECT_EQ(sim.metrics().rollbacks, 0);
+  if (resplit) *resplit = sim.metrics().resplit_steps;
   double worst = 0.0;
   for (std::size_t i = 5; i + 5 < f.size(); ++i) {
     std::vector<double> w(f.begin() + static_cast<std::ptrdiff_t>(i) - 5,
@@ -180,40 +183,62 @@ double pull_j_into_catheter(int fine_steps, double pull, Check&& check) {
   return worst;
 }
 
-// Fine steps (physics.md 5.4): a hand faster than fine_step_speed is stepped at dt / fine_steps
-// with masses scaled for that step. The J tip straightening into the catheter at 300 mm/s then
-// reads smoothly; the switch leaves every step stable and gives the masses back exactly; a hand
-// slower than the threshold never sees it.
+// Fine steps (physics.md 5.4): a hand faster than fine_step_speed is stepped in as many fine steps
+// as keep its travel per fine step within fine_step_travel (25 um: 6 at 300 mm/s), with masses
+// scaled for them. The J tip straightening into the catheter at 300 mm/s then reads smoothly;
+// the splits leave every step stable and give the masses back exactly; a hand slower than the
+// threshold never sees them.
 TEST(Simulator, AFastPullIsSteppedFinerAndReadsSmoothly) {
   const double coarse = pull_j_into_catheter(1, 0.3, [](const Simulator&) {});
   std::vector<std::vector<double>> start, last;
-  int fine_steps_seen = 0;
-  const double fine = pull_j_into_catheter(4, 0.3, [&](const Simulator& sim) {
+  int split_steps = 0, most = 1;
+  const Scenario defaults = test::jl4_with_j_wire(256, false);
+  const double fine = pull_j_into_catheter(defaults.fine_steps, 0.3, [&](const Simulator& sim) {
     const int n = sim.num_instruments();
     if (start.empty())  // the first step of the pull is slow: the coarse masses
       for (int i = 0; i < n; ++i) start.push_back(sim.instrument(i).model.node_mass);
     last.clear();
+    split_steps += sim.split() > 1 ? 1 : 0;
+    most = std::max(most, sim.split());
     for (int i = 0; i < n; ++i) {
       const RodModel& md = sim.instrument(i).model;
       last.push_back(md.node_mass);
-      const bool lighter = md.node_mass.back() < start[i].back();
-      fine_steps_seen += lighter ? 1 : 0;
-      // Each step is stable for the step it takes (the fine masses for the fine step).
-      EXPECT_GE(estimate_stable_dt(md, {}) * (1 + 1e-9), lighter ? 0.5e-3 / 4 : 0.5e-3);
+      // Each step is stable for the step it takes (the masses of its split).
+      EXPECT_GE(estimate_stable_dt(md, {}) * (1 + 1e-9), 0.5e-3 / sim.split());
+      if (sim.split() > 1) {
+        EXPECT_LT(md.node_mass.back(), start[i].back());
+      }
     }
   });
-  EXPECT_GT(fine_steps_seen, 500) << "the pull at 300 mm/s is stepped finely";
+  EXPECT_GT(split_steps, 500) << "the pull at 300 mm/s is stepped finely";
+  EXPECT_EQ(most, 6) << "0.15 mm per step in fine steps of at most 25 um";
   EXPECT_EQ(last, start) << "the hand at rest again: the coarse masses, exactly";
   EXPECT_GT(coarse, 2.5) << "the scaled inertia of the coarse step";
-  EXPECT_LT(fine, 0.45 * coarse);
-  EXPECT_LT(fine, 1.25);
+  EXPECT_LT(fine, 0.35 * coarse);
+  EXPECT_LT(fine, 1.0) << "no step 1 N off its neighbours' median";
   // Slower than the threshold: the same run, bit for bit, whatever fine_steps is.
   std::vector<double> a, b;
   pull_j_into_catheter(
       1, 0.05, [&](const Simulator& sim) { a.push_back(sim.instrument(1).state.x.back().x()); });
   pull_j_into_catheter(
-      4, 0.05, [&](const Simulator& sim) { b.push_back(sim.instrument(1).state.x.back().x()); });
+      8, 0.05, [&](const Simulator& sim) { b.push_back(sim.instrument(1).state.x.back().x()); });
   EXPECT_EQ(a, b);
+}
+
+// A sudden load below the fine-step threshold (physics.md 5.4): the J tip pulled into the
+// catheter at 100 mm/s snaps at the mouth, and its scaled inertia jolts the hand. A step after
+// which a hand force changed by more than fine_step_jump is taken again split, and the split is
+// held for 20 ms: the jolt is cut to less than half.
+TEST(Simulator, ASuddenLoadIsSteppedAgainFiner) {
+  std::int64_t off = -1, on = -1;
+  const double plain = pull_j_into_catheter(
+      8, 0.1, [](const Simulator&) {}, 0.0, &off);
+  const double resplit = pull_j_into_catheter(
+      8, 0.1, [](const Simulator&) {}, 0.3, &on);
+  EXPECT_EQ(off, 0);
+  EXPECT_GT(on, 0);
+  EXPECT_GT(plain, 0.6) << "the jolt is there without it";
+  EXPECT_LT(resplit, 0.5 * plain);
 }
 
 // Issue 4: a scripted timeline replays to the same state. The JL4 and J wire of the fast-pull
