@@ -147,6 +147,8 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
   s.collisions = true;
   s.hand_force = sc_.feedback.hand_force;
   s.feedback_cutoff_hz = sc_.feedback.cutoff_hz;
+  const int splits = std::max(1, sc_.fine_steps);
+  masses_.resize(static_cast<std::size_t>(splits));
   for (std::size_t i = 0; i < specs_.size(); ++i) {
     Discretisation disc;
     disc.max_nodes = sc_.instruments[i].max_nodes;
@@ -159,8 +161,7 @@ Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
         ContactMaterial{specs_[i].friction.vessel_static, specs_[i].friction.vessel_dynamic}, 0.0);
     // Quasi-static: each node and frame only as heavy as the explicit step needs (physics.md 5.4),
     // for the scenario's step and for each split of it a fast hand may use.
-    masses_.resize(static_cast<std::size_t>(std::max(1, sc_.fine_steps)));
-    for (int k = 1; k <= std::max(1, sc_.fine_steps); ++k) {
+    for (int k = 1; k <= splits; ++k) {
       RodModel md = inst.model;
       scale_for_time_step(md, sc_.dt / k, kQuasiStaticKpRatio);
       masses_[k - 1].push_back({std::move(md.node_mass), std::move(md.inv_mass),
