@@ -23,6 +23,7 @@ int run(const Args& a) {
     throw InputError("bench pair", "--steps", "expected 10 .. 1000000");
   }
   PairScene sc = make_pair_scene(a.opt);
+  SolverWorkspace ws(sc.model);
   StaticWall wall = sc.wall();
   // Both advance at 20 mm/s, the wire leading, turning slowly.
   std::vector<DriveCommand> cmds(2, DriveCommand{DriveCommand::Mode::kVelocity, 0.02, 0.5});
@@ -30,7 +31,8 @@ int run(const Args& a) {
   StepProfile p;
   int max_contacts = 0;
   for (int k = 0; k < a.steps; ++k) {
-    step_instruments(sc.instruments, sc.couplings, &wall, sc.settings, cmds, &p);
+    if (solver_step(sc.model, sc.state, ws, &wall, cmds, &p).rolled_back)
+      throw std::runtime_error("bench pair: diverged (a non-finite step)");
     if (k < a.steps / 10) continue;  // warm-up
     total.push_back(p.total);
     forces.push_back(p.forces);
@@ -41,12 +43,9 @@ int run(const Args& a) {
     cons.push_back(p.constraints);
     max_contacts = std::max(max_contacts, p.num_contacts);
   }
-  for (const auto& in : sc.instruments) {
-    if (!in.state.x.back().allFinite()) throw std::runtime_error("bench pair: diverged");
-  }
   nlohmann::json j = {
       {"nodes", a.opt.nodes},
-      {"nodes_total", sc.instruments[0].model.n + sc.instruments[1].model.n},
+      {"nodes_total", sc.model.instruments[0].rod().n + sc.model.instruments[1].rod().n},
       {"wire", a.opt.wire},
       {"catheter", a.opt.catheter},
       {"dt_s", a.opt.dt},
@@ -59,9 +58,10 @@ int run(const Args& a) {
         {"constraints", median(cons)},
         {"distance", median(dist)},
         {"coupling_and_contacts", median(cont)}}},
-      {"coupled_nodes", static_cast<int>(sc.couplings[0].contacts.size())},
+      {"coupled_nodes", static_cast<int>(ws.coupling_contacts(0).size())},
       {"max_wall_contacts", max_contacts},
-      {"hand_force_n", {sc.instruments[0].drive.axial_force, sc.instruments[1].drive.axial_force}},
+      {"hand_force_n",
+       {sc.state.instruments[0].drive.axial_force, sc.state.instruments[1].drive.axial_force}},
   };
   if (a.json) {
     std::cout << j.dump(2) << "\n";

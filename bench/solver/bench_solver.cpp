@@ -16,19 +16,21 @@ void BM_CompressionStep(benchmark::State& state) {
   CompressionScene sc =
       make_compression_scene(o, DistanceMethod::kGlobal, static_cast<int>(state.range(0)));
   StaticWall wall = sc.wall();
-  const double dt = sc.settings.rod.dt;
+  SolverWorkspace ws(sc.model);
+  const double dt = sc.model.dt();
   DriveCommand cmd{DriveCommand::Mode::kPosition, o.end_depth, 0.0};
+  const std::span<const DriveCommand> cmds(&cmd, 1);
   // Push to the end depth first: the benchmark times the loaded rod against the bend.
   const auto push_steps =
       static_cast<long long>((o.end_depth - o.start_depth) / o.push_speed / dt) + 200;
   for (long long k = 1; k <= push_steps; ++k) {
     cmd.translation = compression_depth(o, k, dt);
-    instrument_step(sc.inst, &wall, sc.settings, cmd);
+    solver_step(sc.model, sc.state, ws, &wall, cmds);
   }
   StepProfile prof;
   for (auto _ : state) {
-    instrument_step(sc.inst, &wall, sc.settings, cmd, &prof);
-    benchmark::DoNotOptimize(sc.inst.state.x.data());
+    solver_step(sc.model, sc.state, ws, &wall, cmds, &prof);
+    benchmark::DoNotOptimize(sc.state.instruments[0].rod.x.data());
   }
   state.counters["contacts"] = prof.num_contacts;
   state.counters["queries"] = prof.num_queries;
@@ -42,12 +44,14 @@ void BM_CompressionExperimentStep(benchmark::State& state) {
   const auto iterations = static_cast<int>(state.range(0));
   std::optional<CompressionScene> sc;
   std::optional<StaticWall> wall;
+  std::optional<SolverWorkspace> ws;
   const auto start = [&] {
     sc.emplace(make_compression_scene(o, DistanceMethod::kGlobal, iterations));
     wall.emplace(sc->wall());
+    ws.emplace(sc->model);
   };
   start();
-  const double dt = sc->settings.rod.dt;
+  const double dt = sc->model.dt();
   const long long steps = compression_steps(o, dt);
   DriveCommand cmd{DriveCommand::Mode::kPosition, o.start_depth, 0.0};
   long long k = 0;
@@ -60,8 +64,8 @@ void BM_CompressionExperimentStep(benchmark::State& state) {
     }
     ++k;
     cmd.translation = compression_depth(o, k, dt);
-    instrument_step(sc->inst, &*wall, sc->settings, cmd);
-    benchmark::DoNotOptimize(sc->inst.state.x.data());
+    solver_step(sc->model, sc->state, *ws, &*wall, std::span<const DriveCommand>(&cmd, 1));
+    benchmark::DoNotOptimize(sc->state.instruments[0].rod.x.data());
   }
   state.counters["steps_per_experiment"] = static_cast<double>(steps);
 }

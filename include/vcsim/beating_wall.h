@@ -4,7 +4,7 @@
 #pragma once
 
 #include "vcsim/anatomy.h"
-#include "vcsim/solver.h"
+#include "vcsim/collision.h"
 
 namespace vcsim {
 
@@ -13,8 +13,8 @@ class BeatingWall final : public VesselWall {
   // `lumen` is owned by the caller and must outlive the wall.
   explicit BeatingWall(BeatingLumen& lumen);
 
-  // Time (s) the next queries see; the sim layer sets it before each step.
-  void set_time(double t) { time_ = t; }
+  // Time (s) the next queries see; the solver sets it before each (fine) step.
+  void set_time(double t) override { time_ = t; }
   double time() const { return time_; }
 
   // Moves the patches the spheres can touch to the current time, then queries them.

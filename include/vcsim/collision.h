@@ -230,6 +230,63 @@ class AabbTree {
 };
 
 // ---------------------------------------------------------------------------------------------
+// The wall instruments collide with
+
+// What instruments collide with: a static lumen (StaticWall) or a moving one (anatomy's
+// BeatingWall). The solver sets the time of each (sub-)step, then asks once per step and
+// instrument for the contacts of spheres (nodes); a moving wall first brings the part of itself
+// those spheres can reach to that time, so the interface is not const. Its answers must depend
+// only on the time and the spheres, never on earlier queries, so that a restored state replays
+// bit for bit. Owned by the caller; one wall serves every instrument of a step.
+class VesselWall {
+ public:
+  virtual ~VesselWall() = default;
+  // Time (s) the next queries see; a static wall ignores it.
+  virtual void set_time(double t) { (void)t; }
+  // Contact of each sphere with the wall (see AabbTree::query_spheres). Allocates nothing.
+  virtual void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                             std::span<SphereContact> out) = 0;
+  // The same with a leaf cache per sphere (see LeafCache), refilled reaching `slack` m further.
+  // A wall that is not one static tree ignores the caches (the default).
+  virtual void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                             std::span<LeafCache* const> caches, double slack,
+                             std::span<SphereContact> out) {
+    (void)caches;
+    (void)slack;
+    query_spheres(centres, radii, out);
+  }
+  // Velocity of the wall (m/s) at a contact the last query returned; zero for a static wall.
+  virtual Vec3 velocity(const SphereContact& hit) const {
+    (void)hit;
+    return Vec3::Zero();
+  }
+  // Bound on the wall's speed anywhere (m/s), 0 for a static wall. Lets the contact detection
+  // skip nodes that cannot have reached the wall since their last query.
+  virtual double speed_bound() const { return 0.0; }
+};
+
+// A wall that does not move: a lumen mesh and its AABB tree (owned elsewhere, must outlive it).
+// The cached queries of a batch are independent (each writes its own contact and leaf cache), so
+// a batch of at least `parallel_min` spheres is split across the TBB worker threads, in chunks of
+// at least kParallelChunk; the results do not depend on the number of threads. 0: always serial.
+class StaticWall final : public VesselWall {
+ public:
+  static constexpr int kParallelChunk = 8;
+  StaticWall(const TriangleMesh& mesh, const AabbTree& tree, int parallel_min = 2 * kParallelChunk)
+      : mesh_(&mesh), tree_(&tree), parallel_min_(parallel_min) {}
+  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                     std::span<SphereContact> out) override;
+  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                     std::span<LeafCache* const> caches, double slack,
+                     std::span<SphereContact> out) override;
+
+ private:
+  const TriangleMesh* mesh_;
+  const AabbTree* tree_;
+  int parallel_min_;
+};
+
+// ---------------------------------------------------------------------------------------------
 // Procedural tubes (vessel phantoms for tests and experiments)
 
 struct TubeSpec {

@@ -10,6 +10,7 @@
 #include <span>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 namespace vcsim {
@@ -46,10 +47,31 @@ class StateHasher {
   void add(std::span<const T> s) {
     add_bytes(s.data(), s.size_bytes());
   }
+  template <typename T>
+  void add(const std::vector<T>& v) {
+    add(std::span<const T>(v));
+  }
+  // One scalar (arithmetic types only: a struct's padding bytes would make equal values differ).
+  template <typename T>
+  void add_value(const T& v) {
+    static_assert(std::is_arithmetic_v<T>);
+    add_bytes(&v, sizeof v);
+  }
+  void add_value(const Vec3& v) { add_bytes(v.data(), 3 * sizeof(double)); }
+  void add_value(const Quat& q) { add_bytes(q.coeffs().data(), 4 * sizeof(double)); }
   std::uint64_t value() const { return h_; }
 
  private:
   std::uint64_t h_ = 1469598103934665603ull;
+};
+
+// A small deterministic random generator: SplitMix64 (Steele, Lea and Flood, "Fast splittable
+// pseudorandom number generators", OOPSLA 2014). Its whole state is one word, so a copy of a
+// state that holds it is a snapshot of it.
+struct Random {
+  std::uint64_t state = 0;
+  std::uint64_t next();
+  double uniform();  // in [0, 1), 53 bits
 };
 
 // Median of a sample (taken by value: reorders a copy). 0 for an empty sample.

@@ -48,12 +48,12 @@ struct CompressionRow {
   double penalty_modulus_scale = 1.0;
 };
 
-// The scene: the bent blind tube (mesh + tree) and the rod on its sheath.
+// The scene: the bent blind tube (mesh + tree) and the rod on its sheath (one instrument).
 struct CompressionScene {
   TriangleMesh mesh;
   AabbTree tree;
-  Instrument inst;
-  SolverSettings settings;
+  SolverModel model;
+  SolverState state;
   double mass_scale = 1.0;
   StaticWall wall() const { return StaticWall(mesh, tree); }
 };
@@ -95,9 +95,8 @@ struct PairOptions {
 struct PairScene {
   TriangleMesh mesh;
   AabbTree tree;
-  std::vector<Instrument> instruments;  // [0] wire, [1] catheter
-  std::vector<Coupling> couplings;      // wire in catheter
-  SolverSettings settings;
+  SolverModel model;  // instruments [0] wire, [1] catheter; couplings [0] the wire in the catheter
+  SolverState state;
   StaticWall wall() const { return StaticWall(mesh, tree); }
 };
 PairScene make_pair_scene(const PairOptions& opt);

@@ -1,10 +1,10 @@
-// vcsim haptics: what the trainee does at the groin (per instrument translation and rotation,
-// balloon pressure, syringe flow, buttons) and what the simulator gives back (per instrument
-// axial force and torque at the hub). Two sources: a scripted timeline (deterministic replay)
-// and an OpenIGTLink server for hardware and 3D Slicer. docs/devices.md is the user's guide.
+// vcsim haptics: what the trainee does at the groin and what the simulator gives back, at the
+// boundary of the engine. Two sources: a scripted timeline (deterministic replay) and an
+// OpenIGTLink server for hardware and 3D Slicer. docs/devices.md is the user's guide.
 //
-// Commands use the operator's units (mm, deg, atm, ml/s) as they come off a device; the
-// simulator converts them once when it applies them.
+// Files and messages use the operator's units (mm, deg, atm, ml/s) and instrument names; an input
+// source turns them into StepCommands (vcsim/commands.h: instruments by index, SI) once, when it
+// is polled, so that the step reads neither names nor units.
 #pragma once
 
 #include <cstdint>
@@ -16,8 +16,11 @@
 #include <string_view>
 #include <vector>
 
+#include "vcsim/commands.h"
+
 namespace vcsim {
 
+// One instrument's command as a device or a file gives it, in the operator's units.
 struct InstrumentCommand {
   enum class Mode { kPosition, kVelocity };
   std::string name;  // instrument name, e.g. "guidewire"
@@ -28,25 +31,8 @@ struct InstrumentCommand {
   double rotation_deg = 0.0;
 };
 const char* to_string(InstrumentCommand::Mode m);
-
-// The commands for one physics step.
-struct DeviceCommands {
-  double time_s = 0.0;                         // simulation time the commands are for
-  std::vector<InstrumentCommand> instruments;  // one per instrument, in a fixed order
-  double balloon_pressure_atm = 0.0;           // inflation device pressure (gauge)
-  double syringe_flow_ml_s = 0.0;              // contrast injection (> 0) or aspiration (< 0)
-  std::uint32_t buttons = 0;                   // bit mask (docs/devices.md)
-
-  const InstrumentCommand* find(std::string_view name) const;
-};
-
-// What the simulator feels at an instrument's hub (sign: positive force pushes the instrument
-// back out of the patient; positive torque opposes positive rotation).
-struct ForceFeedback {
-  std::string name;
-  double axial_force_n = 0.0;
-  double torque_nm = 0.0;
-};
+// The same resolved: SI units, the mode carried over.
+DriveCommand to_drive_command(const InstrumentCommand& c);
 
 // Hub forces handed to a device at its own message rate, below the physics rate: each message
 // carries the mean of the forces and torques published since the previous one (a boxcar
@@ -80,15 +66,17 @@ struct CommandLimits {
   std::string check(const InstrumentCommand& c) const;
 };
 
-// A source of device commands, polled by the physics thread once per step.
+// A source of commands, polled by the physics thread once per step.
 class InputSource {
  public:
   virtual ~InputSource() = default;
-  // Fills `out` with the commands for simulation time `sim_time` (s). Reuses `out`'s storage,
-  // so that a warm poll does not allocate.
-  virtual void poll(double sim_time, DeviceCommands& out) = 0;
-  // Hands the latest hub forces to the device (may be called every step; does not block long).
-  virtual void publish(std::span<const ForceFeedback> feedback) { (void)feedback; }
+  // Fills `out` with the commands for simulation time `sim_time` (s): one drive command per
+  // instrument of the scene, SI units. Reuses `out`'s storage, so that a warm poll does not
+  // allocate.
+  virtual void poll(double sim_time, StepCommands& out) = 0;
+  // Hands the latest hub forces (one per instrument, by index) to the device (may be called every
+  // step; does not block long).
+  virtual void publish(std::span<const HandFeedback> feedback) { (void)feedback; }
 };
 
 // A timeline file replayed deterministically: the commands are a pure function of time.
@@ -111,12 +99,17 @@ class ScriptedTimeline : public InputSource {
                                 const CommandLimits& limits = {});
   static ScriptedTimeline load(const std::filesystem::path& file, const CommandLimits& limits = {});
 
-  void poll(double sim_time, DeviceCommands& out) override;
-  void publish(std::span<const ForceFeedback> feedback) override;
+  // Resolves the timeline's instrument names to the scene's instruments, in the scene's order
+  // (`instruments`); an instrument the timeline does not name is held still. A name that is not
+  // one of them is an InputError naming the timeline. poll() needs it first.
+  void bind(std::span<const std::string> instruments);
+  // The commands at sim_time, one per bound instrument, in SI units.
+  void poll(double sim_time, StepCommands& out) override;
+  void publish(std::span<const HandFeedback> feedback) override;
 
   double duration() const;  // time of the last keyframe (s)
   const std::vector<std::string>& instrument_names() const { return names_; }  // sorted
-  const std::vector<ForceFeedback>& last_feedback() const { return feedback_; }
+  const std::vector<HandFeedback>& last_feedback() const { return feedback_; }
 
  private:
   struct Key {
@@ -131,13 +124,17 @@ class ScriptedTimeline : public InputSource {
   std::vector<std::vector<Key>> tracks_;  // (instrument) keyframes naming it, by time
   std::vector<ScalarKey> balloon_, syringe_, buttons_;
   double duration_ = 0.0;
-  std::vector<ForceFeedback> feedback_;
+  std::string source_;
+  std::vector<int> track_of_;  // (bound instrument) its track, -1: not in the timeline
+  bool bound_ = false;
+  std::vector<HandFeedback> feedback_;
 };
 
 struct IgtlServerOptions {
   std::string address = "127.0.0.1";  // IPv4 address to listen on; loopback by default
   int port = 18944;                   // the OpenIGTLink default; 0 picks a free port
-  std::vector<std::string> instruments = {"guidewire", "catheter"};  // device names accepted
+  // The device names accepted, in the scene's order: poll() gives commands by this index.
+  std::vector<std::string> instruments = {"guidewire", "catheter"};
   double feedback_rate_hz = 200.0;  // force messages per second while a client is connected
   CommandLimits limits;
   // Where log lines go (one line each, no newline); default: stderr with a "vcsim igtl:" prefix.
@@ -170,8 +167,9 @@ class IgtlServer : public InputSource {
   IgtlServer& operator=(const IgtlServer&) = delete;
 
   int port() const;  // the port actually bound (useful with port 0)
-  void poll(double sim_time, DeviceCommands& out) override;
-  void publish(std::span<const ForceFeedback> feedback) override;
+  // Commands by index of IgtlServerOptions::instruments, SI units.
+  void poll(double sim_time, StepCommands& out) override;
+  void publish(std::span<const HandFeedback> feedback) override;
   IgtlStats stats() const;
   void stop();  // closes the connection and joins the thread; idempotent
 

@@ -13,6 +13,7 @@
 
 #include <array>
 #include <cstdint>
+#include <filesystem>
 #include <memory>
 #include <random>
 #include <span>
@@ -267,12 +268,16 @@ struct FrameSnapshot {
   std::vector<std::vector<Vec3>> nodes;  // (instrument) inserted centreline, empty if outside
   std::vector<float> contrast;           // (segment)
 };
+FrameSnapshot snapshot(const SimModel& model, const SimState& state);
 FrameSnapshot snapshot(const Simulator& sim);
 
 class SimFluoroscopy {
  public:
-  // Reads the simulator's anatomy, body and instrument specs (which do not change during a run).
-  SimFluoroscopy(const Simulator& sim, int size, BeamEnergy energy = BeamEnergy::k60keV);
+  // Reads the model's anatomy, body and instrument specs (never written during a run; the model
+  // must outlive the renderer).
+  SimFluoroscopy(const SimModel& model, int size, BeamEnergy energy = BeamEnergy::k60keV);
+  SimFluoroscopy(const Simulator& sim, int size, BeamEnergy energy = BeamEnergy::k60keV)
+      : SimFluoroscopy(sim.model(), size, energy) {}
   void frame(const Simulator& sim, const CArmPose& pose, const ImageChainSettings& chain,
              std::vector<std::uint8_t>& out);
   void frame(const FrameSnapshot& snap, const CArmPose& pose, const ImageChainSettings& chain,
@@ -291,6 +296,57 @@ class SimFluoroscopy {
   std::vector<Vec3> lumen_rest_, lumen_now_;
   std::vector<Slots> instruments_;
   std::vector<float> line_integral_;
+};
+
+// Films a run on a second thread, as the desktop app will draw: the physics thread hands over a
+// copied state (FrameSnapshot) at each frame time; the worker owns the GL context, draws, runs the
+// image chain and writes frame_NNNNN.png into `dir`. At most four frames wait, so a slow renderer
+// holds the physics back instead of filling memory. The physics stays single-threaded and
+// deterministic; each frame's noise seed is its index, so the frames do not depend on timing
+// either. The model must outlive the recorder.
+class FrameRecorder {
+ public:
+  // Starts the worker and its GL context; rethrows what stops it from starting (no GL, an
+  // anatomy the renderer cannot draw) after the worker has ended.
+  FrameRecorder(const SimModel& model, int size, BeamEnergy energy, ImageChainSettings chain,
+                std::filesystem::path dir);
+  ~FrameRecorder();
+  FrameRecorder(const FrameRecorder&) = delete;
+  FrameRecorder& operator=(const FrameRecorder&) = delete;
+
+  // Queues a frame (waits while four are queued); rethrows the worker's error.
+  void push(FrameSnapshot snap, const CArmPose& pose);
+  // Waits until every frame handed over is written; rethrows the worker's error.
+  void finish();
+  int frames() const { return submitted_; }
+  double render_seconds() const;
+
+ private:
+  struct Shared;
+  std::unique_ptr<Shared> s_;
+  int submitted_ = 0;
+};
+
+// The C-arm as a scenario sets it: fluoroscopy angles and field, checked against the C-arm's
+// limits (InputError naming the scenario's field); the isocentre is left at the origin.
+CArmPose scenario_pose(const Scenario& scenario);
+
+// Films a run through a FrameRecorder at the scenario's frame rate (a RunObserver), the table
+// centred on the left coronary tree. With the scenario's follow_tip the operator pans the table
+// when the leading tip nears the edge of the field (in moves, as at a real table, which also keeps
+// the body's cached image valid), and back to the heart once the tip is there.
+class RunFilm : public RunObserver {
+ public:
+  RunFilm(const SimModel& model, FrameRecorder& recorder);
+  void after_step(const Simulator& sim) override;
+
+ private:
+  FrameRecorder& recorder_;
+  CArmPose pose_;
+  Vec3 home_;
+  double frame_dt_;
+  bool follow_tip_;
+  double next_frame_ = 0.0;
 };
 
 }  // namespace vcsim

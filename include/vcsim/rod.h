@@ -103,6 +103,9 @@ struct RodModel {
 
   std::vector<Vec3> rest_position;  // (n) designed rest shape (base pose applied)
   std::vector<Quat> rest_frame;     // (m)
+
+  // Every value into `h` (a model that a run must not change is checked by its hash).
+  void hash_into(StateHasher& h) const;
 };
 
 // Everything that changes during a run (structure of arrays). Copying it is a snapshot.
@@ -123,7 +126,9 @@ struct RodState {
   Vec3 tip_force = Vec3::Zero();
   Vec3 tip_torque = Vec3::Zero();
 
+  // FNV-1a over every value above; equal states give equal hashes.
   std::uint64_t hash() const;
+  void hash_into(StateHasher& h) const;
 };
 
 enum class DistanceMethod {

@@ -1,16 +1,22 @@
-// vcsim sim: a procedure as one simulation. A Scenario (data/scenarios/*.json) names the patient,
-// the instruments from the catalogue and how they are nested, the input (a scripted timeline or
-// the autopilot), landmarks to reach, contrast and the fluoroscopy view. A Simulator holds the
-// Scene (anatomy, beating wall, instrument models) and the State (rods, drive, contrast, metrics)
-// and advances them by one fixed step from the device commands (docs/architecture.md "The step").
-// The Autopilot is a closed-loop controller that produces device commands, never moving nodes.
+// vcsim sim: a procedure as one simulation, split the way the rod and solver layers are. A
+// Scenario (data/scenarios/*.json) names the patient, the instruments from the catalogue and how
+// they are nested, the input (a scripted timeline or the autopilot), landmarks, contrast and the
+// fluoroscopy view. From it a SimModel is built once (anatomy and its wall, the solver model of
+// the instruments, names resolved to indices) and never written during a run; a SimState holds
+// everything that changes (instruments, split, contrast, metrics, the random generator), so that
+// copying it is a snapshot; a SimWorkspace holds the scratch (the beating wall's moving patches,
+// the solver's contact lists and backups). sim_step advances a state by one step of dt from
+// commands resolved to instrument indices and SI units (docs/architecture.md "The sim step").
+// Simulator owns the three for the common case, with snapshot and restore.
 //
+// The Autopilot is a closed-loop controller that produces commands, never moving nodes.
 // Files carry units in key names (mm, deg, s, ml/s); structs hold SI.
 #pragma once
 
 #include <atomic>
 #include <cstdint>
 #include <filesystem>
+#include <iosfwd>
 #include <memory>
 #include <optional>
 #include <span>
@@ -20,7 +26,7 @@
 #include <vector>
 
 #include "vcsim/anatomy.h"
-#include "vcsim/beating_wall.h"
+#include "vcsim/commands.h"
 #include "vcsim/haptics.h"
 #include "vcsim/instruments.h"
 #include "vcsim/solver.h"
@@ -53,7 +59,7 @@ struct Landmark {
 // retry when stuck); `follower` keeps its tip `follow_gap` m behind the leader's tip (a catheter
 // over its wire), other instruments hold. kWithdraw: `instrument` is pulled back to `depth`
 // (0 = out of the patient), or to `depth` behind the depth of `relative_to`. kInject: the syringe
-// gives `flow` ml/s for `duration` s. kWait: nothing for `duration` s.
+// gives `flow` for `duration` s. kWait: nothing for `duration` s.
 struct AutopilotPhase {
   enum class Kind { kNavigate, kWithdraw, kInject, kWait };
   Kind kind = Kind::kNavigate;
@@ -65,7 +71,7 @@ struct AutopilotPhase {
   double follow_gap = 0.03;  // m
   double depth = 0.0;        // m (withdraw)
   std::string relative_to;   // (withdraw)
-  double flow = 0.0;         // ml/s (inject)
+  double flow = 0.0;         // m^3/s (inject)
   double duration = 0.0;     // s (inject, wait)
   double speed = 0.1;        // m/s, advance and withdrawal speed
   double seat = 0.0;         // m pushed on once the goal is reached (navigate)
@@ -73,7 +79,7 @@ struct AutopilotPhase {
 const char* to_string(AutopilotPhase::Kind k);
 
 struct ContrastSettings {
-  double blood_flow = 1.5;     // ml/s into the injected vessel's tree (clinical.md, LCA at rest)
+  double blood_flow = 1.5e-6;  // m^3/s into the injected vessel's tree (clinical.md, LCA at rest)
   double blood_speed = 0.2;    // m/s, mean transport speed of contrast in the coronaries
   double washout = 1.0;        // s, time constant of clearance after the bolus
   double concentration = 1.0;  // of the injected contrast, fraction of 350 mgI/ml
@@ -84,28 +90,20 @@ struct ContrastSettings {
 // every segment downstream of it after a transport delay (centreline distance / blood speed) to
 // c = concentration q / (q + Q), q the syringe flow and Q the blood flow through the injected
 // vessel (the coronary flow for a coronary, the cardiac output elsewhere); without flow the
-// contrast washes out with a time constant.
-class ContrastModel {
- public:
-  ContrastModel() = default;
-  ContrastModel(const VesselTree& tree, const ContrastSettings& settings, double dt);
-  // One step of dt; `at` is where the injection enters (used when an injection starts).
-  void step(double flow_ml_s, const TreeLocation& at);
-  const std::vector<float>& concentration() const { return c_; }
-  int injected_segment() const { return segment_; }
-  double volume() const { return volume_; }  // ml injected so far
-
- private:
-  const VesselTree* tree_ = nullptr;
-  ContrastSettings s_;
-  double dt_ = 1e-3;
-  std::vector<float> c_;
-  std::vector<double> arrival_;  // (segment) transport delay from the injection point, s; < 0 no
-  std::vector<float> history_;   // syringe flow of the last 2 s, ring buffer (ml/s)
-  std::size_t pos_ = 0;
-  int segment_ = -1;
-  double volume_ = 0.0;
+// contrast washes out with a time constant. The state of it; contrast_step advances it.
+struct ContrastState {
+  std::vector<float> concentration;  // (segment) fraction of 350 mgI/ml
+  std::vector<double> arrival;  // (segment) transport delay from the injection point, s; < 0 none
+  std::vector<float> history;   // syringe flow of the last 2 s, ring buffer (m^3/s)
+  std::size_t pos = 0;          // newest entry of `history`
+  int segment = -1;             // where the current injection entered (-1: none)
+  double volume = 0.0;          // m^3 injected so far
 };
+ContrastState make_contrast_state(const VesselTree& tree, double dt);
+// One step of dt with a syringe flow (m^3/s); `at` is where an injection enters (read when one
+// starts). Allocates nothing.
+void contrast_step(const VesselTree& tree, const ContrastSettings& settings, double dt, double flow,
+                   const TreeLocation& at, ContrastState& state);
 
 // The fluoroscopy the runner records (validated against the C-arm's limits by the renderer).
 struct FluoroSettings {
@@ -137,6 +135,7 @@ struct Scenario {
   MotionSettings motion;
   double dt = 1e-3;          // s, physics step (1 kHz or faster)
   double time_limit = 60.0;  // s of simulated time before the run ends unfinished
+  std::uint64_t seed = 1;    // of the state's random generator (SimState::random)
   // The introducer sheath's straight part inside the vessel from the access point (m; 0: none),
   // its lumen 0.2 mm wider than the widest instrument (physics.md 6.2).
   double sheath_length = 25e-3;
@@ -172,6 +171,10 @@ Scenario parse_scenario(std::string_view json_text, const std::string& source,
 Scenario load_scenario(const std::filesystem::path& file);
 // data/scenarios of the source tree ($VCSIM_SCENARIOS_DIR if set).
 std::filesystem::path default_scenarios_dir();
+// A scenario named on a command line: a file, or a name in default_scenarios_dir() ("default").
+// InputError(source, field) when it is neither.
+std::filesystem::path find_scenario(const std::string& name_or_path, const std::string& source,
+                                    const std::string& field);
 
 // ---------------------------------------------------------------------------------------------
 // Where things are in the tree
@@ -188,18 +191,44 @@ TreeHit locate(const VesselTree& tree, const Vec3& p);
 bool is_descendant(const VesselTree& tree, int seg, int ancestor);
 
 // ---------------------------------------------------------------------------------------------
-// Simulator
+// Model
+
+struct SimModel {
+  Scenario scenario;  // as read: names, the autopilot's plan, landmarks, fluoroscopy, settings
+  VesselTree tree;    // at rest, lesions applied
+  Lumen lumen;
+  std::optional<CardiacMotion> motion;  // when the scenario beats and the anatomy has a heart
+  AabbTree static_tree;                 // the lumen's tree when it does not beat (else empty)
+  std::vector<InstrumentSpec> specs;    // (instrument) from the catalogue
+  SolverModel solver;  // the instruments at the femoral sheath, their couplings, the splits
+  std::vector<std::pair<int, int>> landmark_ids;  // (landmark) instrument and segment index
+  std::vector<int> outer_of;  // (instrument) the instrument whose lumen holds it, -1: none
+
+  double dt() const { return solver.dt(); }
+  int num_instruments() const { return static_cast<int>(specs.size()); }
+  // The name -> index table of the instruments (-1: no such instrument).
+  int instrument_index(std::string_view name) const { return scenario.find_instrument(name); }
+  const std::string& instrument_name(int i) const { return scenario.instruments[i].name; }
+  // FNV-1a over everything a step reads (the solver model, the anatomy's wall, the settings):
+  // a run must leave it unchanged (tested).
+  std::uint64_t hash() const;
+};
+
+// Builds the anatomy (cached lumen), the wall and the instruments at the sheath. Throws
+// InputError for a scenario that does not fit the anatomy or the catalogue.
+std::shared_ptr<const SimModel> build_sim_model(Scenario scenario);
+
+// ---------------------------------------------------------------------------------------------
+// State
 
 struct LandmarkRecord {
-  std::string name;
-  std::string instrument;
   bool reached = false;
   double time = 0.0;  // s, simulated time first reached
 };
 
+// What a run has done so far (accumulated by every step; no wall-clock times, so that equal
+// states are equal bit for bit).
 struct SimMetrics {
-  double sim_time = 0.0;   // s
-  double wall_time = 0.0;  // s spent in step()
   std::int64_t steps = 0;
   std::vector<double> tip_path;          // (instrument) m travelled by the distal tip
   std::vector<double> peak_wall_force;   // (instrument) N, largest wall contact force
@@ -207,106 +236,153 @@ struct SimMetrics {
   // (instrument) N, largest change of the hand force from one step to the next while inserted:
   // a physical load builds up over milliseconds, a numerical spike within a step.
   std::vector<double> peak_axial_jump;
-  std::vector<double> peak_torque;  // (instrument) N m at the hand, largest magnitude
-  std::vector<LandmarkRecord> landmarks;
-  double contrast_volume = 0.0;  // ml injected
-  int rollbacks = 0;             // steps that produced a non-finite value and were undone
+  std::vector<double> peak_torque;        // (instrument) N m at the hand, largest magnitude
+  std::vector<double> last_axial_force;   // (instrument) N of the previous step, NaN if outside
+  std::vector<LandmarkRecord> landmarks;  // (landmark) of SimModel::scenario.landmarks
+  double next_landmark_check = 0.0;       // s
+  int rollbacks = 0;                      // steps that produced a non-finite value and were undone
   // Steps taken again split after a sudden change of a hand force (Scenario::fine_step_jump).
   std::int64_t resplit_steps = 0;
 };
 
+struct SimState {
+  SolverState solver;  // instruments (rods, drives, contact coherence), time, split and its hold
+  ContrastState contrast;
+  SimMetrics metrics;
+  // For the procedure's random events (seeded by Scenario::seed; none draws from it yet).
+  Random random;
+
+  double time() const { return solver.time; }  // s
+  // FNV-1a over every value above.
+  std::uint64_t hash() const;
+  // Bytes of memory a copy (a snapshot) holds.
+  std::size_t bytes() const;
+};
+
+SimState make_sim_state(const SimModel& model);
+
+// ---------------------------------------------------------------------------------------------
+// Workspace and step
+
+namespace internal {
+struct SimScratch;
+}
+
+// Scratch for stepping one state of a model: the wall (the beating lumen's patches, moved to each
+// step's time where instruments can reach them, or the static tree's queries), the solver's
+// workspace. The model must outlive it. A state can be restored into it at any time: every
+// answer of the wall depends on the time only.
+class SimWorkspace {
+ public:
+  explicit SimWorkspace(const SimModel& model);
+  ~SimWorkspace();
+  SimWorkspace(const SimWorkspace&) = delete;
+  SimWorkspace& operator=(const SimWorkspace&) = delete;
+
+  SolverWorkspace& solver();
+  const SolverWorkspace& solver() const;
+  VesselWall& wall();
+  internal::SimScratch& scratch() { return *s_; }
+
+ private:
+  std::unique_ptr<internal::SimScratch> s_;
+};
+
+// Wall-clock time of a sim step's stages (microseconds).
+struct SimStepProfile {
+  StepProfile instruments;  // the solver's stages, summed over the fine steps
+  double solver = 0.0;      // solver_step: sub-steps, wall motion, instruments
+  double contrast = 0.0;    // injection point and transport
+  double metrics = 0.0;     // tip paths, peak forces
+  double landmarks = 0.0;   // landmark checks (every 5 ms of simulated time)
+  double total = 0.0;
+};
+
+// One step of model.dt(): the instruments (solver_step, in the beating wall), contrast, metrics
+// and landmarks. `commands` must hold one drive command per instrument (asserted). No heap
+// allocation once warm.
+void sim_step(const SimModel& model, SimState& state, SimWorkspace& ws,
+              const StepCommands& commands, SimStepProfile* profile = nullptr);
+
+// Reading a state as a trainee reads the screen.
+// The distal tip of instrument i, in the vessel as it is now.
+Vec3 tip(const SimState& state, int i);
+// The tip carried back to the anatomy at rest (undoing the cardiac motion where it is).
+Vec3 tip_rest(const SimModel& model, const SimState& state, int i);
+TreeHit tip_location(const SimModel& model, const SimState& state, int i);
+bool all_landmarks_reached(const SimState& state);
+
+// ---------------------------------------------------------------------------------------------
+// Simulator: a model, its state and workspace together
+
+// Accumulated wall-clock time of a Simulator's steps (not part of the state: it differs from run
+// to run).
+struct SimProfile {
+  double wall_time = 0.0;  // s spent in step()
+  std::int64_t steps = 0;
+  SimStepProfile sum;  // stage times summed over the steps (us)
+};
+
 class Simulator {
  public:
-  // Builds the anatomy (cached lumen), the beating wall and the instruments at the sheath.
-  // Throws InputError for a scenario that does not fit the anatomy or the catalogue.
+  // Builds the model (build_sim_model) and its initial state.
   explicit Simulator(Scenario scenario);
+  // Another simulation of a model already built (a batch, a vector of learning environments).
+  explicit Simulator(std::shared_ptr<const SimModel> model);
   ~Simulator();
   Simulator(const Simulator&) = delete;
   Simulator& operator=(const Simulator&) = delete;
 
-  // One step of dt: commands (by instrument name, operator units) -> drive, wall at t + dt,
-  // instruments, contrast, metrics. A step that produces a non-finite value is undone, counted
-  // in metrics().rollbacks and the instruments are held still for that step.
-  void step(const DeviceCommands& commands);
+  // One step of dt. Commands of the wrong size or with a non-finite value are refused with
+  // InputError("commands", ...) before anything changes. A step that produces a non-finite value
+  // is undone, counted in metrics().rollbacks and the instruments are held still for that step.
+  void step(const StepCommands& commands);
 
-  const Scenario& scenario() const { return sc_; }
-  double time() const { return time_; }
-  const VesselTree& tree() const { return tree_; }  // at rest, lesions applied
-  const Lumen& lumen() const { return lumen_; }
-  const CardiacMotion* motion() const { return motion_ ? &*motion_ : nullptr; }
-  int num_instruments() const { return static_cast<int>(insts_.size()); }
-  const Instrument& instrument(int i) const { return insts_[i]; }
-  const InstrumentSpec& instrument_spec(int i) const { return specs_[i]; }
-  // Distal tip position and its tree location (in the vessel as it is now).
-  Vec3 tip(int i) const;
-  // The tip carried back to the anatomy at rest (undoing the cardiac motion where it is).
-  Vec3 tip_rest(int i) const;
-  TreeHit tip_location(int i) const;
+  // A copy of the whole state; restore() puts one back (of this model: InputError otherwise).
+  // Restoring a snapshot and replaying the same commands gives the same states bit for bit.
+  SimState snapshot() const { return state_; }
+  void restore(const SimState& snapshot);
+
+  const SimModel& model() const { return *model_; }
+  const std::shared_ptr<const SimModel>& shared_model() const { return model_; }
+  const SimState& state() const { return state_; }
+  const SimProfile& profile() const { return profile_; }
+
+  const Scenario& scenario() const { return model_->scenario; }
+  double time() const { return state_.time(); }
+  double dt() const { return model_->dt(); }
+  const VesselTree& tree() const { return model_->tree; }  // at rest, lesions applied
+  const Lumen& lumen() const { return model_->lumen; }
+  const CardiacMotion* motion() const { return model_->motion ? &*model_->motion : nullptr; }
+  int num_instruments() const { return model_->num_instruments(); }
+  const InstrumentSpec& instrument_spec(int i) const { return model_->specs[i]; }
+  const InstrumentModel& instrument_model(int i) const { return model_->solver.instruments[i]; }
+  // The rod's model for an unsplit step (its geometry is the same in every split).
+  const RodModel& rod_model(int i) const { return instrument_model(i).rod(); }
+  const InstrumentState& instrument(int i) const { return state_.solver.instruments[i]; }
+  Vec3 tip(int i) const { return vcsim::tip(state_, i); }
+  Vec3 tip_rest(int i) const { return vcsim::tip_rest(*model_, state_, i); }
+  TreeHit tip_location(int i) const { return vcsim::tip_location(*model_, state_, i); }
   // Inserted depth of an instrument (m).
-  double depth(int i) const { return insts_[i].drive.depth; }
+  double depth(int i) const { return instrument(i).drive.depth; }
   // How many fine steps the last step was split into (1: none; physics.md 5.4).
-  int split() const { return split_; }
+  int split() const { return state_.solver.split; }
   // Contrast concentration per segment (fraction of 350 mgI/ml).
-  const std::vector<float>& contrast() const { return contrast_.concentration(); }
-  const SimMetrics& metrics() const { return metrics_; }
-  std::vector<ForceFeedback> feedback() const;
-  // The same into `out`, reusing its storage (no allocation once warm: for every step).
-  void feedback(std::vector<ForceFeedback>& out) const;
-  bool all_landmarks_reached() const;
+  const std::vector<float>& contrast() const { return state_.contrast.concentration; }
+  const SimMetrics& metrics() const { return state_.metrics; }
+  // The last step's wall contacts of instrument i.
+  std::span<const NodeContact> contacts(int i) const;
+  // What each hand feels, into `out` (one per instrument; no allocation once warm).
+  void feedback(std::vector<HandFeedback>& out) const;
+  bool all_landmarks_reached() const { return vcsim::all_landmarks_reached(state_); }
   // The route (centreline points) from the access to a place, m.
   std::vector<Vec3> route_to(const TreeLocation& to, double spacing = 1e-3) const;
 
  private:
-  void update_metrics(const std::vector<Vec3>& old_tips);
-  // The fastest hand this step's commands ask for (m/s).
-  double hand_speed() const;
-  // How many fine steps a step at this hand speed is split into (1: not split).
-  int split_for(double speed) const;
-  // The split of a hand at fine_step_speed (at least 2).
-  int threshold_split() const;
-  // The instruments over one step of dt, in split_ fine steps; the hand force is their mean.
-  void advance();
-  // Puts in every instrument's masses and inertias for steps of dt / n (kept momentum where a
-  // mass grows, kept velocity where it shrinks).
-  void use_masses(int n);
-
-  // An instrument's masses and inertias (RodModel's fields of the same names).
-  struct MassSet {
-    std::vector<double> node_mass, inv_mass;
-    std::vector<Vec3> inertia, inv_inertia;
-  };
-
-  Scenario sc_;
-  VesselTree tree_;
-  Lumen lumen_;
-  std::optional<CardiacMotion> motion_;
-  std::unique_ptr<BeatingLumen> beating_;
-  std::unique_ptr<BeatingWall> beating_wall_;
-  AabbTree static_tree_;
-  std::unique_ptr<StaticWall> static_wall_;
-  VesselWall* wall_ = nullptr;
-  std::vector<InstrumentSpec> specs_;
-  std::vector<Instrument> insts_;
-  std::vector<Coupling> couplings_;
-  SolverSettings settings_;
-  std::vector<DriveCommand> drive_;
-  std::vector<DriveCommand> sub_drive_;  // (instrument) the hand's command for one fine step
-  // (n - 1, instrument) the masses scaled for steps of dt / n, n = 1 .. fine_steps (n = 1: the
-  // scenario's step), built once.
-  std::vector<std::vector<MassSet>> masses_;
-  int split_ = 1;  // the steps are split into split_ fine steps and use masses_[split_ - 1]
-  double hold_until_ = -1.0;  // s: steps before this stay split at least held_split_ times
-  int held_split_ = 1;        // (a sudden load)
-  std::vector<double> fine_force_, fine_torque_;  // (instrument) hand force summed over them
-  std::vector<RodState> backup_;
-  std::vector<DriveState> backup_drive_;
-  ContrastModel contrast_;
-  std::vector<Vec3> old_tips_;
-  std::vector<std::pair<int, int>> landmark_ids_;  // (landmark) instrument and segment index
-  double next_landmark_check_ = 0.0;
-  std::vector<double> last_axial_force_;  // (instrument) N of the previous step, NaN if outside
-  double time_ = 0.0;
-  SimMetrics metrics_;
+  std::shared_ptr<const SimModel> model_;
+  SimState state_;
+  std::unique_ptr<SimWorkspace> ws_;
+  SimProfile profile_;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -355,7 +431,7 @@ class RunObserver {
  public:
   virtual ~RunObserver() = default;
   // With the commands for the next step; false ends the run before that step.
-  virtual bool before_step(const Simulator& sim, const DeviceCommands& commands) {
+  virtual bool before_step(const Simulator& sim, const StepCommands& commands) {
     (void)sim;
     (void)commands;
     return true;
@@ -370,15 +446,71 @@ RunLoopStats run_loop(Simulator& sim, InputSource& input, const RunLoopSettings&
                       RunObserver* observer = nullptr);
 
 // ---------------------------------------------------------------------------------------------
+// A run's report
+
+class Autopilot;
+
+// What a run's caller knows besides the simulator: how it was driven and filmed, and its clocks.
+struct RunReport {
+  std::string scenario_file;
+  double end_time = 0.0;     // s simulated the run was to last
+  double wall_time = 0.0;    // s of the loop, wall clock
+  double setup_time = 0.0;   // s building the scene
+  double render_time = 0.0;  // s drawing frames (on their own thread)
+  int frames = 0;
+  std::string video;       // file, "" for none
+  std::string input_type;  // "autopilot", "timeline" or "igtl"
+  bool realtime = false;
+  RunLoopStats loop;
+  // A live device (input_type "igtl").
+  std::string device_address;
+  int device_port = 0;
+  IgtlStats device;
+  const Autopilot* autopilot = nullptr;  // when it drove the run
+};
+
+struct RunOutcome {
+  bool success = false;  // every landmark reached
+  std::string text;      // "all landmarks reached", or what was missed and why
+};
+RunOutcome run_outcome(const Simulator& sim, const RunReport& report);
+
+// DIR/metrics.json (docs/scenarios.md, "metrics.json"): the run's figures, instruments, landmarks,
+// input and outcome. Throws InputError naming the file when it cannot be written.
+void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
+                       const RunReport& report);
+// The same in a few lines for a person (landmarks, real-time factor, files).
+void print_run_summary(std::ostream& out, const Simulator& sim, const RunReport& report,
+                       const std::filesystem::path& frames_dir,
+                       const std::filesystem::path& metrics);
+
+// Every step's hand force and torque per instrument as CSV (`vcsim run --force-log`): time,
+// then depth (mm), force (N) and torque (N mm) of each instrument, under a header naming them.
+class ForceLog : public RunObserver {
+ public:
+  // Throws InputError("run", "--force-log", ...) when the file cannot be written.
+  ForceLog(const std::filesystem::path& file, const SimModel& model);
+  ~ForceLog() override;
+  void after_step(const Simulator& sim) override;
+
+ private:
+  struct File;
+  std::unique_ptr<File> f_;
+};
+
+// ---------------------------------------------------------------------------------------------
 // Autopilot
 
-// Drives the scenario's autopilot plan through device commands (position mode, operator units),
-// reading the simulator's state as a trainee reads the screen: tip positions and forces.
+// Drives the scenario's autopilot plan through commands (position mode), reading the state as a
+// trainee reads the screen: tip positions and forces. A plain value: copying it with a snapshot
+// of the state resumes both.
 class Autopilot {
  public:
-  explicit Autopilot(const Simulator& sim);
-  // The commands for the next step.
-  void command(const Simulator& sim, DeviceCommands& out);
+  Autopilot(const SimModel& model, const SimState& state);
+  explicit Autopilot(const Simulator& sim) : Autopilot(sim.model(), sim.state()) {}
+  // The commands for the next step (one drive command per instrument).
+  void command(const SimModel& model, const SimState& state, StepCommands& out);
+  void command(const Simulator& sim, StepCommands& out) { command(sim.model(), sim.state(), out); }
   bool finished() const { return failed_ || phase_ >= static_cast<int>(plan_.size()); }
   bool failed() const { return failed_; }  // gave up (stuck after every retry)
   int phase() const { return phase_; }
@@ -397,8 +529,8 @@ class Autopilot {
   bool trace = false;          // print what it sees and does to stderr, 4 times a second
 
  private:
-  void start_phase(const Simulator& sim);
-  void navigate(const Simulator& sim, const AutopilotPhase& ph);
+  void start_phase(const SimModel& model, const SimState& state);
+  void navigate(const SimModel& model, const SimState& state, const AutopilotPhase& ph);
   // An instrument seated at a goal by an earlier phase (a guiding catheter in an ostium).
   struct Hold {
     int instrument = -1;
@@ -439,6 +571,18 @@ class Autopilot {
   std::string status_;
   double next_trace_ = 0.0;
   double aim_distance_ = 0.0, aim_angle_ = 0.0;  // of the leader's tip to its aim (trace)
+};
+
+// The autopilot as an input source of a simulator: it reads the simulator's state as a trainee
+// reads the screen.
+class AutopilotInput : public InputSource {
+ public:
+  AutopilotInput(Autopilot& pilot, const Simulator& sim) : pilot_(pilot), sim_(sim) {}
+  void poll(double sim_time, StepCommands& out) override;
+
+ private:
+  Autopilot& pilot_;
+  const Simulator& sim_;
 };
 
 }  // namespace vcsim

@@ -1,64 +1,27 @@
-// vcsim solver: an instrument (a rod) driven through an access sheath inside a vessel lumen.
-// One step: drive kinematics, forces, velocities, collision detection, then N block iterations
-// of [global distance solve, contacts with Coulomb friction], then positions
-// (docs/architecture.md).
+// vcsim solver: instruments (rods) driven through an access sheath inside a vessel wall, a wire
+// running in a catheter's lumen, the hand's force. Like the rod layer, it is split into what is
+// built once (SolverModel, never written during a run), what changes (SolverState: copying it is
+// a snapshot) and scratch (SolverWorkspace, sized once, private to src/solver).
+//
+// solver_step advances one step of the model's dt; inside it, a fast hand or a sudden load splits
+// the step into fine steps with the masses for them (physics.md 5.4), and a step that produced a
+// non-finite value is undone. Each fine step runs the stages of docs/architecture.md: drive,
+// forces, velocities, collision detection, N block iterations of [global distance solve, wall
+// contacts with Coulomb friction, coaxial coupling], positions, hand force.
 #pragma once
 
 #include <array>
+#include <cstdint>
+#include <memory>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "vcsim/collision.h"
+#include "vcsim/commands.h"
 #include "vcsim/rod.h"
 
 namespace vcsim {
-
-// The vessel wall instruments collide with. The solver asks it once per step and instrument for
-// the contacts of spheres (nodes); a moving wall (anatomy's beating lumen, BeatingWall) first
-// brings the part of itself those spheres can reach to the current time, so the interface is
-// not const. Owned by the caller; one wall serves every instrument of a step.
-class VesselWall {
- public:
-  virtual ~VesselWall() = default;
-  // Contact of each sphere with the wall (see AabbTree::query_spheres). Allocates nothing.
-  virtual void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
-                             std::span<SphereContact> out) = 0;
-  // The same with a leaf cache per sphere (see LeafCache), refilled reaching `slack` m further.
-  // A wall that is not one static tree ignores the caches (the default).
-  virtual void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
-                             std::span<LeafCache* const> caches, double slack,
-                             std::span<SphereContact> out) {
-    (void)caches;
-    (void)slack;
-    query_spheres(centres, radii, out);
-  }
-  // Velocity of the wall (m/s) at a contact the last query returned; zero for a static wall.
-  virtual Vec3 velocity(const SphereContact& hit) const;
-  // Bound on the wall's speed anywhere (m/s), 0 for a static wall. Lets the contact detection
-  // skip nodes that cannot have reached the wall since their last query.
-  virtual double speed_bound() const { return 0.0; }
-};
-
-// A wall that does not move: a lumen mesh and its AABB tree (owned elsewhere, must outlive it).
-// The cached queries of a batch are independent (each writes its own contact and leaf cache), so
-// a batch of at least `parallel_min` spheres is split across the TBB worker threads, in chunks of
-// at least kParallelChunk; the results do not depend on the number of threads. 0: always serial.
-class StaticWall final : public VesselWall {
- public:
-  static constexpr int kParallelChunk = 8;
-  StaticWall(const TriangleMesh& mesh, const AabbTree& tree, int parallel_min = 2 * kParallelChunk)
-      : mesh_(&mesh), tree_(&tree), parallel_min_(parallel_min) {}
-  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
-                     std::span<SphereContact> out) override;
-  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
-                     std::span<LeafCache* const> caches, double slack,
-                     std::span<SphereContact> out) override;
-
- private:
-  const TriangleMesh* mesh_;
-  const AabbTree* tree_;
-  int parallel_min_;
-};
 
 // Coulomb friction between an instrument and the vessel wall.
 struct ContactMaterial {
@@ -81,14 +44,6 @@ struct Sheath {
   double inner_radius = 0.0;
 };
 
-// What the hand does at the sheath this step.
-struct DriveCommand {
-  enum class Mode { kPosition, kVelocity };
-  Mode mode = Mode::kVelocity;
-  double translation = 0.0;  // position mode: inserted depth (m); velocity mode: m/s
-  double rotation = 0.0;     // position mode: roll (rad); velocity mode: rad/s
-};
-
 struct DriveState {
   double depth = 0.0;        // inserted length beyond the access point (m)
   double roll = 0.0;         // rad
@@ -103,7 +58,7 @@ struct DriveState {
   double torque_raw = 0.0;       // N m
 };
 
-// One contact of a node with the wall, solved in the block iterations.
+// One contact of a node with the wall in the last step (an output: SolverWorkspace::contacts).
 struct NodeContact {
   int node = 0;
   Vec3 normal = Vec3::Zero();         // into the lumen
@@ -114,45 +69,50 @@ struct NodeContact {
   double lambda_bias = 0.0;  // part of lambda_n taken back after the step (penetration fix-up)
 };
 
-struct Instrument {
-  RodModel model;
-  RodState state;
-  RodWorkspace ws;
-  Sheath sheath;
-  ContactMaterial contact;
-  DriveState drive;
-  bool driven = true;  // false: a free rod (no sheath), e.g. lying on a surface
-  // Entirely outside the body and not being inserted: the step skips it (nothing of it moves;
-  // the owner sets and clears it, e.g. a wire waiting on the table).
-  bool parked = false;
-  // Contact scratch (sized once).
-  std::vector<SphereContact> hits;       // (n)
-  std::vector<Vec3> query_centre;        // (n) where each node was last queried
-  std::vector<double> clearance;         // (n) wall-free radius around query_centre (0: unknown)
-  std::vector<NodeContact> contacts;     // active contacts, capacity n
-  std::vector<int> query_nodes;          // (n) nodes queried this step
-  std::vector<Vec3> query_points;        // (n)
-  std::vector<double> query_radii;       // (n)
-  std::vector<LeafCache> leaf_cache;     // (n) wall leaves near each node (static walls)
-  std::vector<LeafCache*> query_caches;  // (n) the queried nodes' caches
-  std::vector<unsigned char> sheathed;   // (n) 1: inside another instrument's lumen this step
-  std::vector<Vec3> coupling_impulse;    // (n) coaxial coupling impulses on each node this step
-  // Hand-force scratch (physics.md 6.1): reactions of inner instruments on this one's nodes, and
-  // each node's wall contact and coupling contact this step (-1: none).
-  std::vector<Vec3> felt_load;       // (n)
-  std::vector<int> wall_contact_of;  // (n)
-  std::vector<int> coupling_of;      // (n)
-  std::vector<int> rim_of;           // (n) the rim contact of the edge from node i (-1: none)
-  double wall_travel = 0.0;          // wall motion bound accumulated since the queries
-  std::array<double, 3> stage_us{};  // profile scratch: this instrument's stage times (us)
+// One wire node held inside the outer instrument's lumen in the last step (concentric
+// constraint; an output: SolverWorkspace::coupling_contacts).
+struct CoaxialContact {
+  int node = 0;                // inner instrument's node
+  int segment = 0;             // outer instrument's edge: nodes segment, segment + 1
+  double t = 0.0;              // position of the projection on that edge (0 .. 1)
+  Vec3 normal = Vec3::Zero();  // from the outer centreline toward the inner node
+  double excess = 0.0;         // radial offset beyond the clearance (> 0 violated, < 0 gap), m
+  double lambda_n = 0.0;
+  Vec3 lambda_t = Vec3::Zero();
+  // The inner point: node + a (node + 1 - node). Above 0 only for a rim contact: the inner rod's
+  // edge leaving through the outer one's distal end, against its rim (outer node segment + 1).
+  double a = 0.0;
 };
 
-// Builds a driven instrument lying on the sheath axis with `depth` inserted. The rod's own
-// boundaries must be free (the drive holds the outside part). Throws InputError for bad input.
-Instrument make_instrument(const RodDef& def, const Sheath& sheath, const ContactMaterial& contact,
-                           double depth, double roll = 0.0);
-// A free rod (no drive), e.g. for friction experiments.
-Instrument make_free_instrument(const RodDef& def, const ContactMaterial& contact);
+// ---------------------------------------------------------------------------------------------
+// Model
+
+// An instrument as built: never written during a run.
+struct InstrumentModel {
+  // (split) the rod with its masses and inertias for steps of dt / split (physics.md 5.4):
+  // rods[0] for a whole step, rods[k - 1] for a step split into k. They differ in node_mass,
+  // inv_mass, inertia and inv_inertia only.
+  std::vector<RodModel> rods;
+  Sheath sheath;
+  ContactMaterial contact;
+  bool driven = true;  // false: a free rod (no sheath), e.g. lying on a surface
+
+  const RodModel& rod(int split = 1) const { return rods[split - 1]; }
+};
+
+// An inner instrument (wire) running in the lumen of an outer one (catheter). Both enter through
+// the same sheath. Wire nodes whose inserted arc length is within the catheter's inserted depth
+// are held within the clearance (ID - wire OD) / 2 by impulses perpendicular to the catheter,
+// shared by the two nearest catheter nodes in proportion to their distance (VCSim3's concentric
+// constraints), with optional lumen friction; they skip the wall collision.
+struct CouplingModel {
+  int inner = 0;
+  int outer = 1;
+  double mu = 0.04;  // wire-in-catheter lumen friction (clinical.md)
+  // The edges that leave through the outer instrument's distal opening pass inside its rim and
+  // wrap round it (physics.md 7.1); false: only the nodes are held (VCSim3's constraints).
+  bool rim = true;
+};
 
 struct SolverSettings {
   RodSettings rod;
@@ -178,6 +138,93 @@ struct SolverSettings {
   void validate(const std::string& source = "solver") const;
 };
 
+// When a step is split into fine steps (physics.md 5.4). A split of k uses the instruments'
+// rods[k - 1] and the model's settings[k - 1]; the most is the number of both.
+struct SubStepSettings {
+  // While a hand moves faster than `speed` (m/s), each step is split into as many fine steps as
+  // keep the hand's travel per fine step within `travel` (m), at least 2: the scaled inertia of a
+  // fast pull grows with the travel per step.
+  double speed = 0.13;
+  double travel = 25e-6;
+  // A step after which a hand force has changed by more than `jump` (N) is taken again split at
+  // least twice as finely (and at least as for a hand at `speed`), and steps stay split so for
+  // `hold` (s): a scaled mass stopped or let go suddenly. 0: never.
+  double jump = 0.0;
+  double hold = 0.02;
+};
+
+struct SolverModel {
+  std::vector<InstrumentModel> instruments;
+  std::vector<CouplingModel> couplings;
+  // (split) the settings of a fine step of dt / split; settings[0].rod.dt is the step, dt.
+  std::vector<SolverSettings> settings;
+  SubStepSettings substeps;
+
+  double dt() const { return settings[0].rod.dt; }
+  int max_split() const { return static_cast<int>(settings.size()); }
+  // Checks sizes and indices (every instrument has max_split() rods; couplings name two
+  // different instruments, each inner at most once) and every setting; throws InputError.
+  void validate(const std::string& source = "solver") const;
+  // FNV-1a over every value that the step reads (tests assert that a run never changes it).
+  std::uint64_t hash() const;
+};
+
+// Builds a driven instrument's model as the simulator places it: the rod laid on the sheath axis
+// (depth 0, roll 0). The rod's own boundaries must be free (the drive holds the rod). One split.
+// Throws InputError for bad input.
+InstrumentModel make_instrument_model(const RodDef& def, const Sheath& sheath,
+                                      const ContactMaterial& contact);
+// A free rod (no drive), e.g. for friction experiments; its state comes from make_state.
+InstrumentModel make_free_instrument_model(const RodDef& def, const ContactMaterial& contact);
+
+// The quasi-static instruments of a scenario run (physics.md 5.4): splits 1 .. max_split, each
+// rod's masses scaled by scale_for_time_step for dt / split from the rod as built (rods[0]), and
+// each split's settings those of settings[0] with dt / split and set_quasi_static_damping.
+void make_quasi_static(SolverModel& model, int max_split);
+
+// ---------------------------------------------------------------------------------------------
+// State
+
+// Everything of an instrument that changes during a run.
+struct InstrumentState {
+  RodState rod;
+  DriveState drive;
+  // Entirely outside the body and not being pushed in: the step skips it (nothing of it moves).
+  // Set by each step from its command.
+  bool parked = false;
+  // Contact coherence (physics.md 6): where each node was last queried and the wall-free radius
+  // found around that point (0: touching or unknown), and how far the wall may have moved since.
+  // It decides which nodes are queried and how wide, so it is state, not scratch.
+  std::vector<Vec3> query_centre;  // (n)
+  std::vector<double> clearance;   // (n)
+  double wall_travel = 0.0;        // m
+};
+
+// A driven instrument lying straight on the sheath axis with `depth` (m) inserted and the hand
+// at `roll` (rad). Throws InputError for a depth beyond the rod's length less one segment.
+InstrumentState make_instrument_state(const InstrumentModel& model, double depth,
+                                      double roll = 0.0);
+// A free instrument in the shape the definition gives (make_state).
+InstrumentState make_free_instrument_state(const InstrumentModel& model, const RodDef& def);
+
+struct SolverState {
+  std::vector<InstrumentState> instruments;  // (instrument)
+  double time = 0.0;                         // s
+  // The fine steps of the last step (1: none) and the split a sudden load holds until hold_until.
+  int split = 1;
+  double hold_until = -1.0;  // s
+  int held_split = 1;
+
+  // FNV-1a over every value (rods, drives, contact coherence, split); equal for equal states.
+  std::uint64_t hash() const;
+  void hash_into(StateHasher& h) const;
+};
+
+SolverState make_solver_state(const SolverModel& model, std::vector<InstrumentState> instruments);
+
+// ---------------------------------------------------------------------------------------------
+// Step
+
 struct StepProfile {
   double drive = 0, forces = 0, integrate_velocities = 0, collision = 0, constraints = 0,
          distance = 0, contacts = 0, integrate_positions = 0, total = 0;  // microseconds
@@ -185,48 +232,51 @@ struct StepProfile {
   int num_queries = 0;
 };
 
-// One step of an instrument inside a vessel wall (nullptr: no collisions). No heap allocation
+// What a step did besides moving the instruments.
+struct StepInfo {
+  int split = 1;             // fine steps it was split into
+  bool resplit = false;      // taken again, split finer, after a sudden load
+  bool rolled_back = false;  // it produced a non-finite value: undone, instruments held still
+};
+
+namespace internal {
+struct SolverScratch;
+}
+
+// Scratch sized once for a model (contact lists, query buffers, leaf caches, backups for the
+// re-split and the rollback): a warm step allocates nothing. Holds the last step's contacts for
+// reading until the next step.
+class SolverWorkspace {
+ public:
+  explicit SolverWorkspace(const SolverModel& model);
+  ~SolverWorkspace();
+  SolverWorkspace(SolverWorkspace&&) noexcept;
+  SolverWorkspace& operator=(SolverWorkspace&&) noexcept;
+
+  // The last fine step's wall contacts of an instrument (the introducer sheath's lumen included).
+  std::span<const NodeContact> contacts(int instrument) const;
+  // The last fine step's concentric and rim contacts of a coupling, and its clearance (m).
+  std::span<const CoaxialContact> coupling_contacts(int coupling) const;
+  double coupling_clearance(int coupling) const;
+  // True when the node lay in another instrument's lumen in the last fine step (no wall query).
+  bool sheathed(int instrument, int node) const;
+
+  internal::SolverScratch& scratch() { return *s_; }
+  const internal::SolverScratch& scratch() const { return *s_; }
+
+ private:
+  std::unique_ptr<internal::SolverScratch> s_;
+};
+
+// One step of model.dt(): commands[i] drives instruments[i]; `wall` (nullptr: no collisions) is
+// set to the time of each fine step. Sub-steps, re-split and rollback as in the header comment.
+// `profile`, if given, receives the stages' times summed over the fine steps. No heap allocation
 // once warm.
-void instrument_step(Instrument& inst, VesselWall* wall, const SolverSettings& settings,
-                     const DriveCommand& command, StepProfile* profile = nullptr);
-
-// One wire node held inside the outer instrument's lumen (concentric constraint).
-struct CoaxialContact {
-  int node = 0;                // inner instrument's node
-  int segment = 0;             // outer instrument's edge: nodes segment, segment + 1
-  double t = 0.0;              // position of the projection on that edge (0 .. 1)
-  Vec3 normal = Vec3::Zero();  // from the outer centreline toward the inner node
-  double excess = 0.0;         // radial offset beyond the clearance (> 0 violated, < 0 gap), m
-  double lambda_n = 0.0;
-  Vec3 lambda_t = Vec3::Zero();
-  // The inner point: node + a (node + 1 - node). Above 0 only for a rim contact: the inner rod's
-  // edge leaving through the outer one's distal end, against its rim (outer node segment + 1).
-  double a = 0.0;
-};
-
-// An inner instrument (wire) running in the lumen of an outer one (catheter). Both enter through
-// the same sheath. Wire nodes whose inserted arc length is within the catheter's inserted depth
-// are held within the clearance (ID - wire OD) / 2 by impulses perpendicular to the catheter,
-// shared by the two nearest catheter nodes in proportion to their distance (VCSim3's concentric
-// constraints), with optional lumen friction; they skip the wall collision.
-struct Coupling {
-  int inner = 0;
-  int outer = 1;
-  double mu = 0.04;  // wire-in-catheter lumen friction (clinical.md)
-  // The edges that leave through the outer instrument's distal opening pass inside its rim and
-  // wrap round it (physics.md 7.1); false: only the nodes are held (VCSim3's constraints).
-  bool rim = true;
-  std::vector<CoaxialContact> contacts;  // scratch, capacity = inner nodes
-  double clearance = 0.0;                // m, set by step_instruments
-};
-
-// One step of several instruments in one lumen with their couplings (commands[i] drives
-// instruments[i]). profile, if given, receives the sum over instruments.
-void step_instruments(std::span<Instrument> instruments, std::span<Coupling> couplings,
-                      VesselWall* wall, const SolverSettings& settings,
-                      std::span<const DriveCommand> commands, StepProfile* profile = nullptr);
+StepInfo solver_step(const SolverModel& model, SolverState& state, SolverWorkspace& ws,
+                     VesselWall* wall, std::span<const DriveCommand> commands,
+                     StepProfile* profile = nullptr);
 
 // Diagnostics: the centreline's arc length inside the body and its rest length.
-double compression(const Instrument& inst);  // (rest - arc) / rest over the whole rod
+double compression(const RodModel& model, const RodState& state);  // (rest - arc) / rest
 
 }  // namespace vcsim

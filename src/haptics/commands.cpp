@@ -3,7 +3,9 @@
 #include <cmath>
 #include <fstream>
 #include <map>
+#include <numbers>
 #include <sstream>
+#include <stdexcept>
 
 #include "json_fields.h"
 #include "vcsim/haptics.h"
@@ -18,20 +20,28 @@ const char* to_string(InstrumentCommand::Mode m) {
   return m == InstrumentCommand::Mode::kPosition ? "position" : "velocity";
 }
 
-const InstrumentCommand* DeviceCommands::find(std::string_view name) const {
-  for (const auto& c : instruments) {
-    if (c.name == name) return &c;
-  }
-  return nullptr;
-}
-
 namespace {
+// Operator units to SI (a scripted timeline's and a device's values are converted once, here).
+constexpr double kMm = 1e-3;
+constexpr double kDeg = std::numbers::pi / 180.0;
+constexpr double kMl = 1e-6;       // m^3
+constexpr double kAtm = 101325.0;  // Pa
+
 std::string num(double v) {
   std::ostringstream os;
   os << v;
   return os.str();
 }
 }  // namespace
+
+DriveCommand to_drive_command(const InstrumentCommand& c) {
+  DriveCommand d;
+  d.mode = c.mode == InstrumentCommand::Mode::kPosition ? DriveCommand::Mode::kPosition
+                                                        : DriveCommand::Mode::kVelocity;
+  d.translation = c.translation_mm * kMm;
+  d.rotation = c.rotation_deg * kDeg;
+  return d;
+}
 
 std::string CommandLimits::check(const InstrumentCommand& c) const {
   if (!std::isfinite(c.translation_mm) || !std::isfinite(c.rotation_deg)) {
@@ -131,6 +141,7 @@ ScriptedTimeline ScriptedTimeline::parse(std::string_view json_text, const std::
     tl.tracks_.push_back(std::move(keys));
   }
   tl.duration_ = prev_t;
+  tl.source_ = source;
   return tl;
 }
 
@@ -163,56 +174,82 @@ double lerp(double a, double b, double u) {
 
 }  // namespace
 
-void ScriptedTimeline::poll(double sim_time, DeviceCommands& out) {
+void ScriptedTimeline::bind(std::span<const std::string> instruments) {
+  for (const std::string& name : names_)
+    if (std::find(instruments.begin(), instruments.end(), name) == instruments.end()) {
+      std::string list;
+      for (const std::string& n : instruments) list += (list.empty() ? "" : ", ") + n;
+      throw InputError(source_, "keyframes",
+                       cat("expected instruments of the scenario (", list, "), got '", name, "'"));
+    }
+  track_of_.assign(instruments.size(), -1);
+  for (std::size_t i = 0; i < instruments.size(); ++i) {
+    const auto it = std::find(names_.begin(), names_.end(), instruments[i]);
+    if (it != names_.end()) track_of_[i] = static_cast<int>(it - names_.begin());
+  }
+  bound_ = true;
+}
+
+void ScriptedTimeline::poll(double sim_time, StepCommands& out) {
   using Mode = InstrumentCommand::Mode;
-  out.time_s = sim_time;
-  out.instruments.resize(names_.size());
-  for (std::size_t i = 0; i < names_.size(); ++i) {
-    const auto& keys = tracks_[i];
-    InstrumentCommand& c = out.instruments[i];
-    c.name = names_[i];  // same length each step: no allocation once warm
+  if (!bound_) throw std::logic_error("ScriptedTimeline::poll before bind");
+  out.drive.resize(track_of_.size());
+  for (std::size_t i = 0; i < track_of_.size(); ++i) {
+    DriveCommand& c = out.drive[i];
+    if (track_of_[i] < 0) {  // not in the timeline: the hand holds it
+      c = DriveCommand{};
+      continue;
+    }
+    const auto& keys = tracks_[static_cast<std::size_t>(track_of_[i])];
     const std::ptrdiff_t k = last_at(keys, sim_time);
+    double translation = 0.0, rotation = 0.0;
+    Mode mode = Mode::kPosition;
     if (k < 0) {
       // Before the first keyframe: at rest where the script starts.
       const Key& first = keys.front();
-      c.mode = first.mode;
-      c.translation_mm = first.mode == Mode::kPosition ? first.translation : 0.0;
-      c.rotation_deg = first.mode == Mode::kPosition ? first.rotation : 0.0;
-      continue;
+      mode = first.mode;
+      translation = first.mode == Mode::kPosition ? first.translation : 0.0;
+      rotation = first.mode == Mode::kPosition ? first.rotation : 0.0;
+    } else {
+      const Key& a = keys[static_cast<std::size_t>(k)];
+      mode = a.mode;
+      translation = a.translation;
+      rotation = a.rotation;
+      const std::size_t next = static_cast<std::size_t>(k) + 1;
+      if (a.mode == Mode::kPosition && next < keys.size() && keys[next].mode == Mode::kPosition) {
+        const Key& b = keys[next];
+        const double u = (sim_time - a.t) / (b.t - a.t);
+        translation = lerp(a.translation, b.translation, u);
+        rotation = lerp(a.rotation, b.rotation, u);
+      }
     }
-    const Key& a = keys[static_cast<std::size_t>(k)];
-    c.mode = a.mode;
-    c.translation_mm = a.translation;
-    c.rotation_deg = a.rotation;
-    const std::size_t next = static_cast<std::size_t>(k) + 1;
-    if (a.mode == Mode::kPosition && next < keys.size() && keys[next].mode == Mode::kPosition) {
-      const Key& b = keys[next];
-      const double u = (sim_time - a.t) / (b.t - a.t);
-      c.translation_mm = lerp(a.translation, b.translation, u);
-      c.rotation_deg = lerp(a.rotation, b.rotation, u);
-    }
+    c.mode =
+        mode == Mode::kPosition ? DriveCommand::Mode::kPosition : DriveCommand::Mode::kVelocity;
+    c.translation = translation * kMm;
+    c.rotation = rotation * kDeg;
   }
   const std::ptrdiff_t kb = last_at(balloon_, sim_time);
+  double balloon_atm = 0.0;
   if (kb < 0) {
-    out.balloon_pressure_atm = 0.0;
+    balloon_atm = 0.0;
   } else if (static_cast<std::size_t>(kb) + 1 < balloon_.size()) {
     const auto& a = balloon_[static_cast<std::size_t>(kb)];
     const auto& b = balloon_[static_cast<std::size_t>(kb) + 1];
-    out.balloon_pressure_atm = lerp(a.value, b.value, (sim_time - a.t) / (b.t - a.t));
+    balloon_atm = lerp(a.value, b.value, (sim_time - a.t) / (b.t - a.t));
   } else {
-    out.balloon_pressure_atm = balloon_.back().value;
+    balloon_atm = balloon_.back().value;
   }
+  out.balloon_pressure = balloon_atm * kAtm;
   const std::ptrdiff_t ks = last_at(syringe_, sim_time);
-  out.syringe_flow_ml_s = ks < 0 ? 0.0 : syringe_[static_cast<std::size_t>(ks)].value;
+  out.syringe_flow = ks < 0 ? 0.0 : syringe_[static_cast<std::size_t>(ks)].value * kMl;
   const std::ptrdiff_t kn = last_at(buttons_, sim_time);
   out.buttons =
       kn < 0 ? 0u : static_cast<std::uint32_t>(buttons_[static_cast<std::size_t>(kn)].value);
 }
 
-void ScriptedTimeline::publish(std::span<const ForceFeedback> feedback) {
+void ScriptedTimeline::publish(std::span<const HandFeedback> feedback) {
   // Kept for inspection (tests, reports); a script has no device to push back.
-  feedback_.resize(feedback.size());
-  std::copy(feedback.begin(), feedback.end(), feedback_.begin());
+  feedback_.assign(feedback.begin(), feedback.end());
 }
 
 void FeedbackDecimator::resize(std::size_t instruments) {

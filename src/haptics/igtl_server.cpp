@@ -104,9 +104,16 @@ struct IgtlServer::Impl {
   std::thread thread;
   std::atomic<bool> stopping{false};
 
-  // Hand-over to the physics thread: the latest accepted commands.
+  // Hand-over to the physics thread: the latest accepted commands, as the device sent them
+  // (operator units; poll() converts them).
+  struct Latest {
+    std::vector<InstrumentCommand> instruments;  // in IgtlServerOptions::instruments' order
+    double balloon_pressure_atm = 0.0;
+    double syringe_flow_ml_s = 0.0;
+    std::uint32_t buttons = 0;
+  };
   mutable std::mutex cmd_mu;
-  DeviceCommands latest;
+  Latest latest;
 
   // Hand-over from the physics thread: the hub forces since the last message, one per instrument.
   std::mutex fb_mu;
@@ -121,7 +128,7 @@ struct IgtlServer::Impl {
   std::vector<unsigned char> tx;  // bytes to send (whole messages)
   std::size_t tx_sent = 0;
   std::vector<igtl::SensorMessage::Pointer> out_msgs;  // one per instrument, reused
-  std::vector<ForceFeedback> fb_copy;
+  std::vector<HandFeedback> fb_copy;
   Clock::time_point log_window;
   int log_lines = 0;
   int log_suppressed = 0;
@@ -405,21 +412,21 @@ struct IgtlServer::Impl {
       // is not sent the mean over the time without one.
       std::lock_guard lock(fb_mu);
       for (std::size_t i = 0; i < fb_copy.size(); ++i)
-        feedback.take(i, fb_copy[i].axial_force_n, fb_copy[i].torque_nm);
+        feedback.take(i, fb_copy[i].axial_force, fb_copy[i].torque);
       return;
     }
     if (!tx.empty()) return flush();  // still sending the last batch: forces are latest-value
     {
       std::lock_guard lock(fb_mu);
       for (std::size_t i = 0; i < fb_copy.size(); ++i)
-        feedback.take(i, fb_copy[i].axial_force_n, fb_copy[i].torque_nm);
+        feedback.take(i, fb_copy[i].axial_force, fb_copy[i].torque);
     }
     igtl::TimeStamp::Pointer ts = igtl::TimeStamp::New();
     ts->GetTime();
     for (std::size_t i = 0; i < out_msgs.size(); ++i) {
       auto& msg = out_msgs[i];
-      msg->SetValue(0, fb_copy[i].axial_force_n);
-      msg->SetValue(1, fb_copy[i].torque_nm);
+      msg->SetValue(0, fb_copy[i].axial_force);
+      msg->SetValue(1, fb_copy[i].torque);
       msg->SetTimeStamp(ts);
       msg->Pack();
       const auto* p = static_cast<const unsigned char*>(msg->GetPackPointer());
@@ -518,7 +525,7 @@ IgtlServer::IgtlServer(IgtlServerOptions options) : impl_(std::make_unique<Impl>
   // Commands start at rest: depth 0, angle 0, no pressure, no flow.
   for (const auto& n : s.opt.instruments) {
     s.latest.instruments.push_back({n, InstrumentCommand::Mode::kPosition, 0.0, 0.0});
-    s.fb_copy.push_back({n, 0.0, 0.0});
+    s.fb_copy.push_back({0.0, 0.0});
     auto msg = igtl::SensorMessage::New();
     msg->SetDeviceName(cat("force_", n).c_str());
     msg->SetLength(2);
@@ -547,29 +554,27 @@ int IgtlServer::port() const {
   return impl_->bound_port;
 }
 
-void IgtlServer::poll(double sim_time, DeviceCommands& out) {
+void IgtlServer::poll(double, StepCommands& out) {
   const Impl& s = *impl_;
   std::lock_guard lock(s.cmd_mu);
-  out.time_s = sim_time;
-  out.instruments.resize(s.latest.instruments.size());
-  for (std::size_t i = 0; i < out.instruments.size(); ++i) {
-    out.instruments[i] = s.latest.instruments[i];  // same names each step: no allocation
-  }
-  out.balloon_pressure_atm = s.latest.balloon_pressure_atm;
-  out.syringe_flow_ml_s = s.latest.syringe_flow_ml_s;
+  out.drive.resize(s.latest.instruments.size());
+  for (std::size_t i = 0; i < out.drive.size(); ++i)
+    out.drive[i] = to_drive_command(s.latest.instruments[i]);
+  out.balloon_pressure = s.latest.balloon_pressure_atm * 101325.0;  // Pa
+  out.syringe_flow = s.latest.syringe_flow_ml_s * 1e-6;             // m^3/s
   out.buttons = s.latest.buttons;
 }
 
-void IgtlServer::publish(std::span<const ForceFeedback> feedback) {
+void IgtlServer::publish(std::span<const HandFeedback> feedback) {
   Impl& s = *impl_;
   std::lock_guard lock(s.fb_mu);
-  for (const auto& f : feedback) {
-    const int i = s.index_of(f.name);
-    if (i < 0) continue;  // an instrument the device does not track
+  // By index: the scene's instruments are the device's, in the same order.
+  const std::size_t n = std::min(feedback.size(), s.fb_copy.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const HandFeedback& f = feedback[i];
     // A non-finite force must not reach a motor.
-    s.feedback.add(static_cast<std::size_t>(i),
-                   std::isfinite(f.axial_force_n) ? f.axial_force_n : 0.0,
-                   std::isfinite(f.torque_nm) ? f.torque_nm : 0.0);
+    s.feedback.add(i, std::isfinite(f.axial_force) ? f.axial_force : 0.0,
+                   std::isfinite(f.torque) ? f.torque : 0.0);
   }
 }
 

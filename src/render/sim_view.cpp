@@ -39,18 +39,18 @@ TriangleMesh placeholder_tube() {
 
 }  // namespace
 
-SimFluoroscopy::SimFluoroscopy(const Simulator& sim, int size, BeamEnergy energy)
-    : renderer_(size), motion_(sim.motion()) {
+SimFluoroscopy::SimFluoroscopy(const SimModel& md, int size, BeamEnergy energy)
+    : renderer_(size), motion_(md.motion ? &*md.motion : nullptr) {
   renderer_.set_beam_energy(energy);
-  const XrayMesh lumen = lumen_xray_mesh(sim.lumen());
+  const XrayMesh lumen = lumen_xray_mesh(md.lumen);
   lumen_rest_ = lumen.mesh.vertices;
   lumen_ = renderer_.add_mesh(lumen);
-  for (const XrayMesh& m : body_xray_meshes(build_body_context(sim.tree())))
+  for (const XrayMesh& m : body_xray_meshes(build_body_context(md.tree)))
     renderer_.set_static(renderer_.add_mesh(m), true);
   const TriangleMesh ph = placeholder_tube();
-  for (int i = 0; i < sim.num_instruments(); ++i) {
+  for (int i = 0; i < md.num_instruments(); ++i) {
     Slots s;
-    s.visual = instrument_visual(sim.instrument_spec(i), sim.scenario().instruments[i].name);
+    s.visual = instrument_visual(md.specs[i], md.instrument_name(i));
     s.shaft =
         renderer_.add_mesh({s.visual.name + "_shaft", ph, s.visual.shaft, s.visual.shaft_fill, {}});
     if (s.visual.radiopaque_length > 0.0)
@@ -63,19 +63,23 @@ SimFluoroscopy::SimFluoroscopy(const Simulator& sim, int size, BeamEnergy energy
   }
 }
 
-FrameSnapshot snapshot(const Simulator& sim) {
+FrameSnapshot snapshot(const SimModel& md, const SimState& st) {
   FrameSnapshot f;
-  f.time = sim.time();
-  f.contrast = sim.contrast();
-  f.nodes.resize(sim.num_instruments());
-  for (int i = 0; i < sim.num_instruments(); ++i) {
-    const Instrument& in = sim.instrument(i);
+  f.time = st.time();
+  f.contrast = st.contrast.concentration;
+  f.nodes.resize(md.num_instruments());
+  for (int i = 0; i < md.num_instruments(); ++i) {
+    const InstrumentState& in = st.solver.instruments[i];
     if (in.drive.depth <= 1e-3) continue;
     // The part inside the body, from the node at the access point on.
     const int first = std::max(0, in.drive.first_free - 1);
-    f.nodes[i].assign(in.state.x.begin() + first, in.state.x.end());
+    f.nodes[i].assign(in.rod.x.begin() + first, in.rod.x.end());
   }
   return f;
+}
+
+FrameSnapshot snapshot(const Simulator& sim) {
+  return snapshot(sim.model(), sim.state());
 }
 
 void SimFluoroscopy::frame(const Simulator& sim, const CArmPose& pose,

@@ -277,14 +277,44 @@ Vec3 darboux(const Quat& qa, const Quat& qb, double l) {
   return (2.0 / l) * internal::relative_rotation(qa, qb).vec();
 }
 
+void RodState::hash_into(StateHasher& h) const {
+  h.add(x);
+  h.add(v);
+  h.add(q);
+  h.add(omega);
+  h.add(f_ext);
+  h.add(tau_ext);
+  h.add_value(base_frame);
+  h.add_value(tip_frame);
+  h.add_value(time);
+  h.add_value(steps);
+  h.add_value(base_force);
+  h.add_value(base_torque);
+  h.add_value(tip_force);
+  h.add_value(tip_torque);
+}
+
 std::uint64_t RodState::hash() const {
   StateHasher h;
-  h.add(std::span<const Vec3>(x));
-  h.add(std::span<const Vec3>(v));
-  h.add(std::span<const Quat>(q));
-  h.add(std::span<const Vec3>(omega));
-  h.add_bytes(&time, sizeof time);
+  hash_into(h);
   return h.value();
+}
+
+void RodModel::hash_into(StateHasher& h) const {
+  h.add_value(n);
+  h.add_value(m);
+  h.add_value(length);
+  h.add_value(static_cast<int>(base));
+  h.add_value(static_cast<int>(tip));
+  for (const std::vector<double>* a :
+       {&rest_length, &edge_s, &node_s, &node_mass, &inv_mass, &kp, &axial_stiffness, &youngs,
+        &shear, &outer_radius, &inner_radius, &area, &bend_inertia, &vertex_length})
+    h.add(*a);
+  for (const std::vector<Vec3>* a :
+       {&inertia, &inv_inertia, &vertex_stiffness, &rest_darboux, &rest_position})
+    h.add(*a);
+  h.add(vertex_active);
+  h.add(rest_frame);
 }
 
 double centreline_length(const RodState& st) {

@@ -48,9 +48,9 @@ std::size_t nearest_point(const std::vector<Vec3>& pts, const Vec3& X,
   return best;
 }
 
-void tip_directions(const Instrument& in, double shaped, Vec3& shaft, Vec3& tipdir) {
-  const RodModel& md = in.model;
-  const auto& x = in.state.x;
+void tip_directions(const RodModel& md, const InstrumentState& in, double shaped, Vec3& shaft,
+                    Vec3& tipdir) {
+  const auto& x = in.rod.x;
   const int n = md.n;
   tipdir = (x[n - 1] - x[n - 2]).normalized();
   // Nodes about shaped + 5 mm and shaped + 15 mm from the tip.
@@ -66,21 +66,21 @@ void tip_directions(const Instrument& in, double shaped, Vec3& shaft, Vec3& tipd
 
 }  // namespace
 
-Autopilot::Autopilot(const Simulator& sim) : plan_(sim.scenario().autopilot) {
-  const int n = sim.num_instruments();
+Autopilot::Autopilot(const SimModel& md, const SimState& st) : plan_(md.scenario.autopilot) {
+  const int n = md.num_instruments();
   depth_.assign(n, 0.0);
   roll_.assign(n, 0.0);
   roll_target_.assign(n, 0.0);
   for (int i = 0; i < n; ++i) {
-    depth_[i] = sim.depth(i);
-    roll_[i] = roll_target_[i] = sim.instrument(i).drive.roll;
+    depth_[i] = st.solver.instruments[i].drive.depth;
+    roll_[i] = roll_target_[i] = st.solver.instruments[i].drive.roll;
   }
   phase_ = 0;
-  if (!plan_.empty()) start_phase(sim);
+  if (!plan_.empty()) start_phase(md, st);
 }
 
-void Autopilot::start_phase(const Simulator& sim) {
-  phase_start_ = sim.time();
+void Autopilot::start_phase(const SimModel& md, const SimState& st) {
+  phase_start_ = st.time();
   pull_speed_ = 0.0;
   retries_ = 0;
   backing_off_ = false;
@@ -89,7 +89,7 @@ void Autopilot::start_phase(const Simulator& sim) {
     return;
   }
   const AutopilotPhase& ph = plan_[phase_];
-  const Scenario& sc = sim.scenario();
+  const Scenario& sc = md.scenario;
   leader_ = ph.instrument.empty() ? -1 : sc.find_instrument(ph.instrument);
   // An instrument this phase moves is no longer held where an earlier phase left it.
   std::erase_if(holds_, [&](const Hold& h) {
@@ -99,7 +99,7 @@ void Autopilot::start_phase(const Simulator& sim) {
   relative_ = ph.relative_to.empty() ? -1 : sc.find_instrument(ph.relative_to);
   status_ = std::string(to_string(ph.kind)) + (ph.instrument.empty() ? "" : " " + ph.instrument);
   if (ph.kind != AutopilotPhase::Kind::kNavigate) return;
-  const VesselTree& tree = sim.tree();
+  const VesselTree& tree = md.tree;
   goal_segment_ = tree.find(ph.goal_segment);
   status_ += " to " + ph.goal_segment;
   goal_distance_ = ostium_distance(tree, goal_segment_) + ph.goal_distance;
@@ -117,20 +117,21 @@ void Autopilot::start_phase(const Simulator& sim) {
   }
   for (int s = goal_segment_; s >= 0; s = tree.segments[s].parent) on_route_[s] = 1;
   progress_ = best_progress_ = 0.0;
-  best_time_ = sim.time();
+  best_time_ = st.time();
   roll_start_ = roll_[leader_];
   depth_at_best_ = -1.0;
   phase_best_progress_ = 0.0;
-  phase_best_depth_ = sim.depth(leader_);
+  phase_best_depth_ = st.solver.instruments[leader_].drive.depth;
 }
 
-void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
-  const double dt = sim.scenario().dt;
-  const double t = sim.time();
+void Autopilot::navigate(const SimModel& md, const SimState& st, const AutopilotPhase& ph) {
+  const double dt = md.dt();
+  const double t = st.time();
   const int L = leader_;
-  const Instrument& in = sim.instrument(L);
-  const Vec3 X = sim.tip_rest(L);
-  const TreeHit hit = locate(sim.tree(), X);
+  const InstrumentState& in = st.solver.instruments[L];
+  auto depth = [&](int i) { return st.solver.instruments[i].drive.depth; };
+  const Vec3 X = tip_rest(md, st, L);
+  const TreeHit hit = locate(md.tree, X);
 
   // Progress: the nearest route point within a window around the last progress.
   const std::size_t best =
@@ -142,14 +143,14 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
   if (reached) {
     // Seat it: a little more insertion keeps a gentle forward load on the tip (a guiding
     // catheter stays engaged in an ostium that way); later phases keep it there.
-    depth_[L] = sim.depth(L) + ph.seat;
+    depth_[L] = depth(L) + ph.seat;
     Hold h;
     h.instrument = L;
     h.seen = t;
     h.phase = ph;
     h.depth = depth_[L];
     // Its route runs on past the goal, so that a tip that dives in is seen to.
-    const VesselTree& tree = sim.tree();
+    const VesselTree& tree = md.tree;
     const double beyond =
         std::min(segment_length(tree.segments[goal_segment_]), goal_distance_ + ph.seat + 0.03);
     const std::vector<Vec3> r = route(tree, tree.access, {goal_segment_, beyond}, kSpacing);
@@ -164,12 +165,12 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
     if (!h.route.empty()) h.target += h.route_s[nearest_point(h.route, X)];
     holds_.push_back(std::move(h));
     ++phase_;
-    start_phase(sim);
+    start_phase(md, st);
     return;
   }
   // Slack: insertion since the tip last made progress (a loop forming in a wide vessel).
-  if (depth_at_best_ < 0.0) depth_at_best_ = sim.depth(L);
-  const double slack = sim.depth(L) - depth_at_best_;
+  if (depth_at_best_ < 0.0) depth_at_best_ = depth(L);
+  const double slack = depth(L) - depth_at_best_;
 
   // Steer: turn the tip's bend toward the route ahead (about the shaft's axis).
   auto steer = [&]() {
@@ -177,7 +178,7 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
     while (k + 1 < route_.size() && route_s_[k] < progress_ + kLookAhead) ++k;
     // A branch to enter ahead: aim at its ostium instead (a shaped tip is turned toward the
     // side branch while it is still above it, then the instrument advances onto it).
-    const VesselTree& tree = sim.tree();
+    const VesselTree& tree = md.tree;
     for (std::size_t j = best; j < route_.size() && route_s_[j] < progress_ + kBranchAhead; ++j) {
       const int sj = route_segment_[j];
       if (sj != hit.loc.segment && tree.segments[sj].parent == hit.loc.segment) {
@@ -186,7 +187,7 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
       }
     }
     Vec3 shaft, tipdir;
-    tip_directions(in, sim.instrument_spec(L).shaped_length(), shaft, tipdir);
+    tip_directions(md.solver.instruments[L].rod(), in, md.specs[L].shaped_length(), shaft, tipdir);
     const Vec3 want = route_[k] - X;
     aim_distance_ = want.norm();
     aim_angle_ = std::acos(std::clamp(tipdir.dot(want.normalized()), -1.0, 1.0));
@@ -207,14 +208,14 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
     depth_[L] = std::max(0.0, depth_[L] - (off_route ? 0.25 : 1.0) * ph.speed * dt);
     // A tip in a wrong branch is pulled until it is back on the route, then a little more.
     if (off_route) {
-      backoff_until_ = std::min(backoff_until_, sim.depth(L) - 0.01);
+      backoff_until_ = std::min(backoff_until_, depth(L) - 0.01);
       steer();  // keep the tip turned toward the ostium it is being pulled past
     }
     if (depth_[L] <= backoff_until_ && !off_route) {
       backing_off_ = false;
       best_progress_ = progress_;
       best_time_ = t;
-      depth_at_best_ = sim.depth(L);
+      depth_at_best_ = depth(L);
     }
   } else if (off_route || t - best_time_ > stuck_time || slack > max_slack) {
     if (++retries_ > max_retries) {
@@ -228,9 +229,9 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
     // Back from where the last progress was, but not more than two back-offs behind where the
     // tip got furthest in this phase: retries that each start a back-off lower walked a guide
     // that did not respond at once 150 mm back up into the arch.
-    backoff_until_ = std::max({0.0, std::min(sim.depth(L), depth_at_best_) - backoff,
-                               std::min(sim.depth(L), phase_best_depth_) - 2.0 * backoff});
-    depth_[L] = sim.depth(L);
+    backoff_until_ = std::max({0.0, std::min(depth(L), depth_at_best_) - backoff,
+                               std::min(depth(L), phase_best_depth_) - 2.0 * backoff});
+    depth_[L] = depth(L);
     // Turn the tip a quarter turn before the next try, so that the tries cover every direction.
     // Turn the tip before the next try, to the next of a few directions around where the phase
     // started (+1, -1, +2, -2, 0 eighths of a turn): an operator does not wind a catheter up
@@ -240,52 +241,52 @@ void Autopilot::navigate(const Simulator& sim, const AutopilotPhase& ph) {
   } else {
     if (progress_ > phase_best_progress_) {
       phase_best_progress_ = progress_;
-      phase_best_depth_ = sim.depth(L);
+      phase_best_depth_ = depth(L);
     }
     if (progress_ > best_progress_ + kProgressStep) {
       best_progress_ = progress_;
       best_time_ = t;
-      depth_at_best_ = sim.depth(L);
+      depth_at_best_ = depth(L);
     }
     // Slow down toward the goal and keep the commanded depth near the real one (the drive can
     // lag behind a position command when the hand pushes against resistance).
     const double to_goal = route_s_.back() - progress_;
     // Slow down over the last few centimetres (an ostium is found at a walking pace).
     const double v = std::clamp(to_goal / kApproach, 0.25, 1.0) * ph.speed;
-    depth_[L] = std::min(depth_[L] + v * dt, sim.depth(L) + 0.01);
+    depth_[L] = std::min(depth_[L] + v * dt, depth(L) + 0.01);
     steer();
   }
   // The follower keeps its tip behind the leader's (a catheter tracking over its wire).
   if (follower_ >= 0) depth_[follower_] = std::max(0.0, depth_[L] - ph.follow_gap);
 }
 
-void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
-  const Scenario& sc = sim.scenario();
-  const int n = sim.num_instruments();
-  const double dt = sc.dt;
-  const double t = sim.time();
-  out.time_s = t;
-  out.syringe_flow_ml_s = 0.0;
-  out.balloon_pressure_atm = 0.0;
+void Autopilot::command(const SimModel& md, const SimState& st, StepCommands& out) {
+  const Scenario& sc = md.scenario;
+  const int n = md.num_instruments();
+  const double dt = md.dt();
+  const double t = st.time();
+  auto depth = [&](int i) { return st.solver.instruments[i].drive.depth; };
+  out.syringe_flow = 0.0;
+  out.balloon_pressure = 0.0;
   if (!finished()) {
     const AutopilotPhase& ph = plan_[phase_];
     switch (ph.kind) {
       case AutopilotPhase::Kind::kWait:
         if (t - phase_start_ >= ph.duration) {
           ++phase_;
-          start_phase(sim);
+          start_phase(md, st);
         }
         break;
       case AutopilotPhase::Kind::kInject:
-        out.syringe_flow_ml_s = ph.flow;
+        out.syringe_flow = ph.flow;
         if (t - phase_start_ >= ph.duration) {
           ++phase_;
-          start_phase(sim);
+          start_phase(md, st);
         }
         break;
       case AutopilotPhase::Kind::kWithdraw: {
         const double target =
-            std::max(0.0, relative_ >= 0 ? sim.depth(relative_) - ph.depth : ph.depth);
+            std::max(0.0, relative_ >= 0 ? depth(relative_) - ph.depth : ph.depth);
         // A hand speeds up and slows down over a few centimetres rather than in one step.
         const double left = std::abs(target - depth_[leader_]);
         double v = ph.speed;
@@ -294,14 +295,14 @@ void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
         pull_speed_ = v;
         const double step = v * dt;
         depth_[leader_] += std::clamp(target - depth_[leader_], -step, step);
-        if (std::abs(sim.depth(leader_) - target) < 0.5e-3) {
+        if (std::abs(depth(leader_) - target) < 0.5e-3) {
           ++phase_;
-          start_phase(sim);
+          start_phase(md, st);
         }
         break;
       }
       case AutopilotPhase::Kind::kNavigate:
-        navigate(sim, ph);
+        navigate(md, st, ph);
         break;
     }
   }
@@ -312,11 +313,11 @@ void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
                  status_.c_str(), progress_ * 1e3, retries_, backing_off_ ? " backing off" : "",
                  aim_distance_ * 1e3, aim_angle_ * 180 / kPi);
     for (int i = 0; i < n; ++i) {
-      if (sim.depth(i) <= 0.0) continue;
-      const TreeHit h = sim.tip_location(i);
+      if (depth(i) <= 0.0) continue;
+      const TreeHit h = tip_location(md, st, i);
       std::fprintf(stderr, "    %-14s depth %6.1f mm (cmd %6.1f) roll %5.0f deg tip %s %.1f mm%s\n",
-                   sc.instruments[i].name.c_str(), sim.depth(i) * 1e3, depth_[i] * 1e3,
-                   roll_[i] * 180 / kPi, sim.tree().segments[h.loc.segment].name.c_str(),
+                   sc.instruments[i].name.c_str(), depth(i) * 1e3, depth_[i] * 1e3,
+                   roll_[i] * 180 / kPi, md.tree.segments[h.loc.segment].name.c_str(),
                    h.loc.distance * 1e3, h.outside > 0 ? " OUTSIDE" : "");
     }
   }
@@ -324,7 +325,7 @@ void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
   // backs out, a little less when it dives in, within a centimetre and a half.
   for (std::size_t hi = 0; hi < holds_.size(); ++hi) {
     const Hold& h = holds_[hi];
-    const Vec3 X = sim.tip_rest(h.instrument);
+    const Vec3 X = tip_rest(md, st, h.instrument);
     const std::size_t best = nearest_point(h.route, X);
     if ((h.route[best] - X).norm() <= kHoldReach) holds_[hi].seen = t;
     if (t - h.seen > kHoldLost) {
@@ -358,7 +359,7 @@ void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
         again.push_back(seat);
         plan_.insert(plan_.begin() + phase_, again.begin(), again.end());
         holds_.erase(holds_.begin() + static_cast<std::ptrdiff_t>(hi));
-        start_phase(sim);
+        start_phase(md, st);
         break;
       }
     }
@@ -370,16 +371,22 @@ void Autopilot::command(const Simulator& sim, DeviceCommands& out) {
     depth_[h.instrument] = std::clamp(depth_[h.instrument] + kHoldGain * err * dt,
                                       h.depth - kHoldRange, h.depth + kHoldRange);
   }
-  out.instruments.resize(n);
+  out.drive.resize(n);
   for (int i = 0; i < n; ++i) {
     // The hand turns at a bounded rate toward the roll it wants.
     roll_[i] += std::clamp(roll_target_[i] - roll_[i], -max_spin * dt, max_spin * dt);
-    InstrumentCommand& c = out.instruments[i];
-    c.name = sc.instruments[i].name;
-    c.mode = InstrumentCommand::Mode::kPosition;
-    c.translation_mm = depth_[i] * 1e3;
-    c.rotation_deg = roll_[i] * 180.0 / kPi;
+    DriveCommand& c = out.drive[i];
+    c.mode = DriveCommand::Mode::kPosition;
+    // TEMPORARY: the round trip through millimetres and degrees that commands made before they
+    // were resolved to SI at the input boundary, kept for one commit so that the engine's split
+    // into model, state and workspace is checked bit for bit against the run before it.
+    c.translation = (depth_[i] * 1e3) * 1e-3;
+    c.rotation = (roll_[i] * 180.0 / kPi) * (kPi / 180.0);
   }
+}
+
+void AutopilotInput::poll(double, StepCommands& out) {
+  pilot_.command(sim_, out);
 }
 
 }  // namespace vcsim

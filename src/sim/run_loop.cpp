@@ -40,10 +40,11 @@ void RealTimePacer::wait(double sim_time) {
 RunLoopStats run_loop(Simulator& sim, InputSource& input, const RunLoopSettings& settings,
                       RunObserver* observer) {
   RunLoopStats stats;
-  RealTimePacer pacer(sim.scenario().dt, settings.max_catch_up);
-  DeviceCommands cmds;
-  std::vector<ForceFeedback> feedback;
-  const double dt = sim.scenario().dt;
+  RealTimePacer pacer(sim.dt(), settings.max_catch_up);
+  StepCommands cmds;
+  cmds.reset(static_cast<std::size_t>(sim.num_instruments()));
+  std::vector<HandFeedback> feedback;
+  const double dt = sim.dt();
   while (sim.time() < settings.end_time - 1e-9) {
     if (settings.stop && settings.stop->load(std::memory_order_relaxed)) {
       stats.stopped = true;

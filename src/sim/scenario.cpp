@@ -38,7 +38,7 @@ AutopilotPhase parse_phase(const Json& j, const std::string& src, const std::str
     p.relative_to = f.text_or("relative_to", "");
   } else if (action == "inject") {
     p.kind = AutopilotPhase::Kind::kInject;
-    p.flow = f.in_range("flow_ml_s", 0.0, 30.0);
+    p.flow = f.in_range("flow_ml_s", 0.0, 30.0) * 1e-6;  // m^3/s
     p.duration = f.positive_or("duration_s", 2.0);
   } else if (action == "wait") {
     p.kind = AutopilotPhase::Kind::kWait;
@@ -105,6 +105,12 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   }
   sc.dt = f.in_range_or("dt_ms", 0.0, 1.0, 1.0) * 1e-3;
   sc.time_limit = f.in_range_or("time_limit_s", 0.0, 3600.0, 60.0);
+  if (f.has("seed")) {
+    const double seed = f.number("seed");
+    if (seed < 0 || seed > 9007199254740992.0 || seed != std::floor(seed))
+      f.fail("seed", "expected a whole number from 0 to 2^53");
+    sc.seed = static_cast<std::uint64_t>(seed);
+  }
   sc.sheath_length = f.in_range_or("sheath_length_mm", 0.0, 300.0, 25.0) * kMm;
   if (f.has("fine_steps")) {
     const double n = f.in_range("fine_steps", 0.0, 16.0);
@@ -189,7 +195,7 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   }
   if (f.has("contrast")) {
     JsonFields c = f.object("contrast");
-    sc.contrast.blood_flow = c.number_or("blood_flow_ml_s", sc.contrast.blood_flow);
+    if (c.has("blood_flow_ml_s")) sc.contrast.blood_flow = c.number("blood_flow_ml_s") * 1e-6;
     sc.contrast.blood_speed = c.number_or("blood_speed_mm_s", sc.contrast.blood_speed / kMm) * kMm;
     sc.contrast.washout = c.number_or("washout_s", sc.contrast.washout);
     sc.contrast.concentration = c.number_or("concentration", sc.contrast.concentration);
@@ -241,6 +247,17 @@ Scenario load_scenario(const std::filesystem::path& file) {
 std::filesystem::path default_scenarios_dir() {
   if (const char* d = std::getenv("VCSIM_SCENARIOS_DIR"); d && *d) return d;
   return VCSIM_DEFAULT_SCENARIOS_DIR;
+}
+
+std::filesystem::path find_scenario(const std::string& arg, const std::string& source,
+                                    const std::string& field) {
+  const std::filesystem::path p(arg);
+  if (std::filesystem::exists(p)) return p;
+  const std::filesystem::path named = default_scenarios_dir() / (arg + ".json");
+  if (p.extension().empty() && std::filesystem::exists(named)) return named;
+  throw InputError(source, field,
+                   "expected a scenario file or a name in " + default_scenarios_dir().string() +
+                       ", got '" + arg + "'");
 }
 
 }  // namespace vcsim

@@ -1,22 +1,22 @@
-// The simulator: a scenario's scene (anatomy, beating wall, instruments from the catalogue at the
-// femoral sheath) and state, advanced by the step pipeline of docs/architecture.md, with a
-// transport model of contrast and the run's metrics (docs/scenarios.md).
+// The simulation of a scenario: its model (anatomy, wall, instruments from the catalogue at the
+// femoral sheath), its state and workspace, and the sim step of docs/architecture.md: the
+// instruments (solver_step), contrast transport, metrics and landmarks (docs/scenarios.md).
 #include <algorithm>
+#include <cassert>
 #include <cmath>
 #include <limits>
 #include <numbers>
 
-#include "vcsim/sim.h"
+#include "sim_scratch.h"
 
 namespace vcsim {
 
 namespace {
 
 constexpr double kMm = 1e-3;
-constexpr double kDeg = std::numbers::pi / 180.0;
 // Cardiac output at rest, 5 l/min (clinical.md): what dilutes contrast injected into the aorta.
-constexpr double kCardiacOutputMlS = 83.0;
-constexpr double kContrastFill = 0.1;  // s, time constant of filling a segment once it arrives
+constexpr double kCardiacOutput = 83.0e-6;  // m^3/s
+constexpr double kContrastFill = 0.1;       // s, time constant of filling a segment once it arrives
 constexpr double kLandmarkInterval = 0.005;  // s between landmark checks
 
 VesselTree load_anatomy(const Scenario& sc) {
@@ -37,12 +37,20 @@ int segment_named(const VesselTree& t, const std::string& name, const std::strin
   return s;
 }
 
-bool finite_state(const RodState& st) {
-  for (std::size_t i = 0; i < st.x.size(); ++i)
-    if (!st.x[i].allFinite() || !st.v[i].allFinite()) return false;
-  for (std::size_t j = 0; j < st.q.size(); ++j)
-    if (!st.q[j].coeffs().allFinite() || !st.omega[j].allFinite()) return false;
-  return true;
+void hash_tree(StateHasher& h, const VesselTree& t) {
+  for (const VesselSegment& s : t.segments) {
+    h.add_value(static_cast<int>(s.kind));
+    h.add_value(s.parent);
+    h.add(s.points);
+    h.add(s.radii);
+    h.add_value(s.closed_end);
+  }
+  for (const Lesion& l : t.lesions)
+    for (double v : {l.distance, l.length, l.diameter_reduction, l.eccentricity, l.angle})
+      h.add_value(v);
+  h.add_value(t.access.segment);
+  h.add_value(t.access.distance);
+  h.add_value(t.open_start);
 }
 
 }  // namespace
@@ -75,445 +83,494 @@ bool is_descendant(const VesselTree& tree, int seg, int ancestor) {
   return false;
 }
 
-Simulator::Simulator(Scenario scenario) : sc_(std::move(scenario)) {
-  const std::string& src = sc_.source;
-  tree_ = load_anatomy(sc_);
-  // Check every name before the expensive build.
-  // Landmarks resolved to indices once (the scenario parser checked the instrument names).
-  for (std::size_t i = 0; i < sc_.landmarks.size(); ++i) {
-    const int seg = segment_named(tree_, sc_.landmarks[i].segment, src,
+// --- model ---------------------------------------------------------------------------------------
+
+std::shared_ptr<const SimModel> build_sim_model(Scenario scenario) {
+  auto model = std::make_shared<SimModel>();
+  SimModel& md = *model;
+  md.scenario = std::move(scenario);
+  const Scenario& sc = md.scenario;
+  const std::string& src = sc.source;
+  md.tree = load_anatomy(sc);
+  // Check every name before the expensive build, and resolve it to an index once.
+  for (std::size_t i = 0; i < sc.landmarks.size(); ++i) {
+    const int seg = segment_named(md.tree, sc.landmarks[i].segment, src,
                                   "landmarks[" + std::to_string(i) + "].segment");
-    const int inst = sc_.find_instrument(sc_.landmarks[i].instrument);
+    const int inst = sc.find_instrument(sc.landmarks[i].instrument);
     if (inst < 0)
       throw InputError(
           src, "landmarks[" + std::to_string(i) + "].instrument",
-          "expected an instrument of the scenario, got '" + sc_.landmarks[i].instrument + "'");
-    landmark_ids_.push_back({inst, seg});
+          "expected an instrument of the scenario, got '" + sc.landmarks[i].instrument + "'");
+    md.landmark_ids.push_back({inst, seg});
   }
-  for (std::size_t i = 0; i < sc_.autopilot.size(); ++i)
-    if (sc_.autopilot[i].kind == AutopilotPhase::Kind::kNavigate)
-      segment_named(tree_, sc_.autopilot[i].goal_segment, src,
+  for (std::size_t i = 0; i < sc.autopilot.size(); ++i)
+    if (sc.autopilot[i].kind == AutopilotPhase::Kind::kNavigate)
+      segment_named(md.tree, sc.autopilot[i].goal_segment, src,
                     "autopilot[" + std::to_string(i) + "].goal.segment");
   const std::filesystem::path cat_dir = default_catalogue_dir();
   const InstrumentCatalogue cat = load_catalogue(cat_dir);
-  for (std::size_t i = 0; i < sc_.instruments.size(); ++i) {
-    const InstrumentSpec* s = cat.find(sc_.instruments[i].catalogue);
+  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
+    const InstrumentSpec* s = cat.find(sc.instruments[i].catalogue);
     if (!s)
       throw InputError(src, "instruments[" + std::to_string(i) + "].catalogue",
                        "expected an entry of " + cat_dir.string() + ", got '" +
-                           sc_.instruments[i].catalogue + "'");
-    specs_.push_back(*s);
+                           sc.instruments[i].catalogue + "'");
+    md.specs.push_back(*s);
   }
-  for (std::size_t i = 0; i < sc_.instruments.size(); ++i) {
-    const int o = sc_.find_instrument(sc_.instruments[i].inside);
+  md.outer_of.assign(sc.instruments.size(), -1);
+  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
+    const int o = sc.find_instrument(sc.instruments[i].inside);
     if (o < 0) continue;
-    if (specs_[o].inner_diameter <= specs_[i].outer_diameter)
+    if (md.specs[o].inner_diameter <= md.specs[i].outer_diameter)
       throw InputError(src, "instruments[" + std::to_string(i) + "].inside",
-                       "expected a lumen wider than the instrument: '" + specs_[o].name +
-                           "' has ID " + std::to_string(specs_[o].inner_diameter / kMm) + " mm, '" +
-                           specs_[i].name + "' OD " +
-                           std::to_string(specs_[i].outer_diameter / kMm) + " mm");
+                       "expected a lumen wider than the instrument: '" + md.specs[o].name +
+                           "' has ID " + std::to_string(md.specs[o].inner_diameter / kMm) +
+                           " mm, '" + md.specs[i].name + "' OD " +
+                           std::to_string(md.specs[i].outer_diameter / kMm) + " mm");
+    md.outer_of[i] = o;
   }
 
-  lumen_ = build_lumen(tree_);
-  if (sc_.beating && tree_.heart) {
-    motion_.emplace(tree_, sc_.motion);
-    beating_ = std::make_unique<BeatingLumen>(lumen_.mesh, *motion_);
-    beating_wall_ = std::make_unique<BeatingWall>(*beating_);
-    wall_ = beating_wall_.get();
+  md.lumen = build_lumen(md.tree);
+  if (sc.beating && md.tree.heart) {
+    md.motion.emplace(md.tree, sc.motion);
   } else {
-    static_tree_.build(lumen_.mesh, AabbTreeSettings::for_static_mesh());
-    static_wall_ = std::make_unique<StaticWall>(lumen_.mesh, static_tree_);
-    wall_ = static_wall_.get();
+    md.static_tree.build(md.lumen.mesh, AabbTreeSettings::for_static_mesh());
   }
 
   // The sheath: at the tree's access, pointing along the vessel toward the heart (retrograde,
   // against the centreline's flow direction).
-  const VesselSegment& acc = tree_.segments[tree_.access.segment];
+  const VesselSegment& acc = md.tree.segments[md.tree.access.segment];
   Sheath sheath;
-  sheath.access_point = point_at(acc, tree_.access.distance);
-  const Vec3 axis = -tangent_at(acc, tree_.access.distance);
+  sheath.access_point = point_at(acc, md.tree.access.distance);
+  const Vec3 axis = -tangent_at(acc, md.tree.access.distance);
   sheath.frame = Quat::FromTwoVectors(Vec3::UnitZ(), axis).normalized();
   // The introducer sheath: its straight part in the femoral artery holds what passes through it
   // on the axis (a 6F sheath for a 6F catheter: 0.2 mm of play across).
-  sheath.length = sc_.sheath_length;
+  sheath.length = sc.sheath_length;
   double widest = 0.0;
-  for (const InstrumentSpec& sp : specs_) widest = std::max(widest, sp.outer_diameter);
+  for (const InstrumentSpec& sp : md.specs) widest = std::max(widest, sp.outer_diameter);
   sheath.inner_radius = 0.5 * widest + 0.1e-3;
 
-  SolverSettings& s = settings_;
-  s.rod.dt = sc_.dt;
-  set_quasi_static_damping(s.rod);
+  SolverModel& sv = md.solver;
+  SolverSettings s;
+  s.rod.dt = sc.dt;
   s.collisions = true;
-  s.hand_force = sc_.feedback.hand_force;
-  s.feedback_cutoff_hz = sc_.feedback.cutoff_hz;
-  const int splits = std::max(1, sc_.fine_steps);
-  masses_.resize(static_cast<std::size_t>(splits));
-  for (std::size_t i = 0; i < specs_.size(); ++i) {
+  s.hand_force = sc.feedback.hand_force;
+  s.feedback_cutoff_hz = sc.feedback.cutoff_hz;
+  sv.settings = {s};
+  for (std::size_t i = 0; i < md.specs.size(); ++i) {
     Discretisation disc;
-    disc.max_nodes = sc_.instruments[i].max_nodes;
-    disc.tip_segment = sc_.instruments[i].tip_segment;
-    RodDef def = to_rod_def(specs_[i], disc);
+    disc.max_nodes = sc.instruments[i].max_nodes;
+    disc.tip_segment = sc.instruments[i].tip_segment;
+    RodDef def = to_rod_def(md.specs[i], disc);
     def.base = BoundaryKind::kFree;
     def.tip = BoundaryKind::kFree;
-    Instrument inst = make_instrument(
+    sv.instruments.push_back(make_instrument_model(
         def, sheath,
-        ContactMaterial{specs_[i].friction.vessel_static, specs_[i].friction.vessel_dynamic}, 0.0);
-    // Quasi-static: each node and frame only as heavy as the explicit step needs (physics.md 5.4),
-    // for the scenario's step and for each split of it a fast hand may use.
-    for (int k = 1; k <= splits; ++k) {
-      RodModel md = inst.model;
-      scale_for_time_step(md, sc_.dt / k, kQuasiStaticKpRatio);
-      masses_[k - 1].push_back({std::move(md.node_mass), std::move(md.inv_mass),
-                                std::move(md.inertia), std::move(md.inv_inertia)});
-    }
-    scale_for_time_step(inst.model, sc_.dt, kQuasiStaticKpRatio);
-    insts_.push_back(std::move(inst));
+        ContactMaterial{md.specs[i].friction.vessel_static, md.specs[i].friction.vessel_dynamic}));
   }
-  for (std::size_t i = 0; i < sc_.instruments.size(); ++i) {
-    const int o = sc_.find_instrument(sc_.instruments[i].inside);
-    if (o < 0) continue;
-    Coupling c;
+  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
+    if (md.outer_of[i] < 0) continue;
+    CouplingModel c;
     c.inner = static_cast<int>(i);
-    c.outer = o;
-    c.mu = specs_[i].friction.lumen;
-    c.rim = sc_.instruments[i].rim;
-    c.contacts.reserve(insts_[i].model.n);
-    couplings_.push_back(std::move(c));
+    c.outer = md.outer_of[i];
+    c.mu = md.specs[i].friction.lumen;
+    c.rim = sc.instruments[i].rim;
+    sv.couplings.push_back(c);
   }
-  s.validate(src);
-  drive_.resize(insts_.size());
-  for (DriveCommand& d : drive_) d.mode = DriveCommand::Mode::kPosition;
-  sub_drive_.resize(insts_.size());
-  fine_force_.assign(insts_.size(), 0.0);
-  fine_torque_.assign(insts_.size(), 0.0);
-  backup_.resize(insts_.size());
-  backup_drive_.resize(insts_.size());
-  contrast_ = ContrastModel(tree_, sc_.contrast, sc_.dt);
-  const std::size_t n = insts_.size();
-  metrics_.tip_path.assign(n, 0.0);
-  metrics_.peak_wall_force.assign(n, 0.0);
-  metrics_.peak_axial_force.assign(n, 0.0);
-  metrics_.peak_axial_jump.assign(n, 0.0);
-  metrics_.peak_torque.assign(n, 0.0);
-  last_axial_force_.assign(n, std::nan(""));
-  for (const Landmark& l : sc_.landmarks) metrics_.landmarks.push_back({l.name, l.instrument});
+  // Quasi-static (physics.md 5.4): each node and frame only as heavy as the explicit step needs,
+  // for the scenario's step and for each split of it a fast hand may use.
+  make_quasi_static(sv, std::max(1, sc.fine_steps));
+  sv.substeps.speed = sc.fine_step_speed;
+  sv.substeps.travel = sc.fine_step_travel;
+  sv.substeps.jump = sc.fine_step_jump;
+  sv.substeps.hold = sc.fine_step_hold;
+  sv.validate(src);
+  return model;
 }
 
-Simulator::~Simulator() = default;
-
-Vec3 Simulator::tip(int i) const {
-  return insts_[i].state.x.back();
+std::uint64_t SimModel::hash() const {
+  StateHasher h;
+  h.add_value(solver.hash());
+  hash_tree(h, tree);
+  h.add(lumen.mesh.vertices);
+  for (const auto& t : lumen.mesh.triangles)
+    for (int v : t) h.add_value(v);
+  h.add(lumen.mesh.normals);
+  for (const AabbNode& n : static_tree.nodes()) {
+    h.add_value(n.box.lo);
+    h.add_value(n.box.hi);
+    h.add_value(n.first);
+    h.add_value(n.count);
+  }
+  h.add(static_tree.triangle_order());
+  h.add_value(motion.has_value());
+  if (motion) {
+    const MotionSettings& m = motion->settings();
+    for (double v :
+         {m.heart_rate_bpm, m.translation, m.radial_contraction, m.longitudinal_contraction,
+          m.twist, m.respiratory_rate_per_min, m.respiratory_shift, m.respiratory_rotation})
+      h.add_value(v);
+    h.add_value(m.respiration);
+  }
+  const ContrastSettings& c = scenario.contrast;
+  for (double v : {c.blood_flow, c.blood_speed, c.washout, c.concentration}) h.add_value(v);
+  for (const auto& [inst, seg] : landmark_ids) {
+    h.add_value(inst);
+    h.add_value(seg);
+  }
+  for (const Landmark& l : scenario.landmarks) h.add_value(l.distance);
+  h.add(outer_of);
+  return h.value();
 }
 
-Vec3 Simulator::tip_rest(int i) const {
+// --- state ---------------------------------------------------------------------------------------
+
+ContrastState make_contrast_state(const VesselTree& tree, double dt) {
+  ContrastState s;
+  s.concentration.assign(tree.num_segments(), 0.0f);
+  s.arrival.assign(tree.num_segments(), -1.0);
+  s.history.assign(static_cast<std::size_t>(std::ceil(2.0 / dt)) + 1, 0.0f);
+  return s;
+}
+
+void contrast_step(const VesselTree& tree, const ContrastSettings& set, double dt, double flow,
+                   const TreeLocation& at, ContrastState& s) {
+  const std::size_t nh = s.history.size();
+  if (flow > 0.0 && s.segment < 0 && at.segment >= 0) {
+    s.segment = at.segment;
+    // Transport delay: the centreline distance from the injection point to each segment's
+    // start, for the injected segment and everything below it (parents precede children).
+    std::fill(s.arrival.begin(), s.arrival.end(), -1.0);
+    s.arrival[at.segment] = 0.0;
+    for (int k = at.segment + 1; k < tree.num_segments(); ++k) {
+      const int p = tree.segments[k].parent;
+      if (p < 0 || s.arrival[p] < 0.0) continue;
+      const double from = p == at.segment ? at.distance : 0.0;
+      s.arrival[k] =
+          s.arrival[p] + std::max(0.0, attach_distance(tree, k) - from) / set.blood_speed;
+    }
+  }
+  if (flow > 0.0) s.volume += flow * dt;
+  s.pos = (s.pos + 1) % nh;
+  s.history[s.pos] = static_cast<float>(std::max(0.0, flow));
+  if (s.segment < 0) return;
+  const bool coronary = tree.segments[s.segment].kind == VesselKind::kCoronary;
+  const double blood = coronary ? set.blood_flow : kCardiacOutput;
+  bool any = false;
+  for (int k = 0; k < tree.num_segments(); ++k) {
+    if (s.arrival[k] < 0.0) continue;
+    const std::size_t lag = std::min(nh - 1, static_cast<std::size_t>(s.arrival[k] / dt));
+    const double q = s.history[(s.pos + nh - lag) % nh];
+    const double target = set.concentration * q / (q + blood);
+    const double c = s.concentration[k];
+    const double tau = target > c ? kContrastFill : set.washout;
+    s.concentration[k] = static_cast<float>(c + (target - c) * (1.0 - std::exp(-dt / tau)));
+    any = any || s.concentration[k] > 1e-4f || q > 0.0;
+  }
+  if (!any) s.segment = -1;  // washed out: the next injection starts afresh
+}
+
+SimState make_sim_state(const SimModel& md) {
+  SimState st;
+  std::vector<InstrumentState> insts;
+  for (const InstrumentModel& im : md.solver.instruments)
+    insts.push_back(make_instrument_state(im, 0.0));
+  st.solver = make_solver_state(md.solver, std::move(insts));
+  st.contrast = make_contrast_state(md.tree, md.dt());
+  const std::size_t n = md.solver.instruments.size();
+  SimMetrics& m = st.metrics;
+  m.tip_path.assign(n, 0.0);
+  m.peak_wall_force.assign(n, 0.0);
+  m.peak_axial_force.assign(n, 0.0);
+  m.peak_axial_jump.assign(n, 0.0);
+  m.peak_torque.assign(n, 0.0);
+  m.last_axial_force.assign(n, std::nan(""));
+  m.landmarks.assign(md.scenario.landmarks.size(), LandmarkRecord{});
+  st.random.state = md.scenario.seed;
+  return st;
+}
+
+std::uint64_t SimState::hash() const {
+  StateHasher h;
+  solver.hash_into(h);
+  const ContrastState& c = contrast;
+  h.add(c.concentration);
+  h.add(c.arrival);
+  h.add(c.history);
+  h.add_value(c.pos);
+  h.add_value(c.segment);
+  h.add_value(c.volume);
+  const SimMetrics& m = metrics;
+  h.add_value(m.steps);
+  for (const std::vector<double>* v : {&m.tip_path, &m.peak_wall_force, &m.peak_axial_force,
+                                       &m.peak_axial_jump, &m.peak_torque, &m.last_axial_force})
+    h.add(*v);
+  for (const LandmarkRecord& l : m.landmarks) {
+    h.add_value(l.reached);
+    h.add_value(l.time);
+  }
+  h.add_value(m.next_landmark_check);
+  h.add_value(m.rollbacks);
+  h.add_value(m.resplit_steps);
+  h.add_value(random.state);
+  return h.value();
+}
+
+namespace {
+
+template <class T>
+std::size_t bytes_of(const std::vector<T>& v) {
+  return v.capacity() * sizeof(T);
+}
+
+}  // namespace
+
+std::size_t SimState::bytes() const {
+  std::size_t b = sizeof(SimState);
+  for (const InstrumentState& in : solver.instruments) {
+    const RodState& r = in.rod;
+    b += sizeof(InstrumentState) + bytes_of(r.x) + bytes_of(r.v) + bytes_of(r.q) +
+         bytes_of(r.omega) + bytes_of(r.f_ext) + bytes_of(r.tau_ext) + bytes_of(in.query_centre) +
+         bytes_of(in.clearance);
+  }
+  b += bytes_of(contrast.concentration) + bytes_of(contrast.arrival) + bytes_of(contrast.history);
+  const SimMetrics& m = metrics;
+  b += bytes_of(m.tip_path) + bytes_of(m.peak_wall_force) + bytes_of(m.peak_axial_force) +
+       bytes_of(m.peak_axial_jump) + bytes_of(m.peak_torque) + bytes_of(m.last_axial_force) +
+       bytes_of(m.landmarks);
+  return b;
+}
+
+// --- workspace -----------------------------------------------------------------------------------
+
+SimWorkspace::SimWorkspace(const SimModel& md) : s_(std::make_unique<internal::SimScratch>(md)) {}
+SimWorkspace::~SimWorkspace() = default;
+SolverWorkspace& SimWorkspace::solver() {
+  return s_->solver;
+}
+const SolverWorkspace& SimWorkspace::solver() const {
+  return s_->solver;
+}
+VesselWall& SimWorkspace::wall() {
+  return *s_->wall;
+}
+
+internal::SimScratch::SimScratch(const SimModel& md) : solver(md.solver) {
+  if (md.motion) {
+    beating = std::make_unique<BeatingLumen>(md.lumen.mesh, *md.motion);
+    beating_wall = std::make_unique<BeatingWall>(*beating);
+    wall = beating_wall.get();
+  } else {
+    static_wall = std::make_unique<StaticWall>(md.lumen.mesh, md.static_tree);
+    wall = static_wall.get();
+  }
+  old_tips.resize(md.solver.instruments.size());
+}
+
+// --- step ----------------------------------------------------------------------------------------
+
+Vec3 tip(const SimState& st, int i) {
+  return st.solver.instruments[i].rod.x.back();
+}
+
+Vec3 tip_rest(const SimModel& md, const SimState& st, int i) {
   // X = p - u(X, t) by fixed-point iteration (u is smooth and small against its length scale).
-  const Vec3 p = tip(i);
+  const Vec3 p = tip(st, i);
   Vec3 X = p;
-  if (motion_)
-    for (int k = 0; k < 3; ++k) X = p - motion_->displacement(X, time_);
+  if (md.motion)
+    for (int k = 0; k < 3; ++k) X = p - md.motion->displacement(X, st.time());
   return X;
 }
 
-TreeHit Simulator::tip_location(int i) const {
-  return locate(tree_, tip_rest(i));
+TreeHit tip_location(const SimModel& md, const SimState& st, int i) {
+  return locate(md.tree, tip_rest(md, st, i));
 }
 
-std::vector<Vec3> Simulator::route_to(const TreeLocation& to, double spacing) const {
-  return route(tree_, tree_.access, to, spacing);
-}
-
-std::vector<ForceFeedback> Simulator::feedback() const {
-  std::vector<ForceFeedback> out;
-  for (std::size_t i = 0; i < insts_.size(); ++i)
-    out.push_back({sc_.instruments[i].name, insts_[i].drive.axial_force, insts_[i].drive.torque});
-  return out;
-}
-
-void Simulator::feedback(std::vector<ForceFeedback>& out) const {
-  out.resize(insts_.size());
-  for (std::size_t i = 0; i < insts_.size(); ++i) {
-    out[i].name = sc_.instruments[i].name;  // same names every step: no allocation
-    out[i].axial_force_n = insts_[i].drive.axial_force;
-    out[i].torque_nm = insts_[i].drive.torque;
-  }
-}
-
-bool Simulator::all_landmarks_reached() const {
-  for (const LandmarkRecord& l : metrics_.landmarks)
+bool all_landmarks_reached(const SimState& st) {
+  for (const LandmarkRecord& l : st.metrics.landmarks)
     if (!l.reached) return false;
   return true;
 }
 
-void Simulator::step(const DeviceCommands& cmds) {
-  const double t0 = now_us();
-  const double dt = sc_.dt;
-  for (std::size_t i = 0; i < insts_.size(); ++i) {
-    DriveCommand& d = drive_[i];
-    const InstrumentCommand* c = cmds.find(sc_.instruments[i].name);
-    if (!c) {  // no command: the hand holds the instrument where it is
-      d.mode = DriveCommand::Mode::kVelocity;
-      d.translation = d.rotation = 0.0;
-      continue;
-    }
-    d.mode = c->mode == InstrumentCommand::Mode::kPosition ? DriveCommand::Mode::kPosition
-                                                           : DriveCommand::Mode::kVelocity;
-    d.translation = c->translation_mm * kMm;
-    d.rotation = c->rotation_deg * kDeg;
-  }
-  for (std::size_t i = 0; i < insts_.size(); ++i) {
-    backup_[i] = insts_[i].state;
-    backup_drive_[i] = insts_[i].drive;
-  }
-  std::vector<Vec3>& old_tips = old_tips_;
-  old_tips.resize(insts_.size());
-  for (std::size_t i = 0; i < insts_.size(); ++i) old_tips[i] = tip(static_cast<int>(i));
+namespace {
 
-  // An instrument lying outside that the hand does not push in is parked (skipped).
-  for (std::size_t i = 0; i < insts_.size(); ++i) {
-    const DriveCommand& d = drive_[i];
-    const DriveState& ds = insts_[i].drive;
-    const bool still = d.mode == DriveCommand::Mode::kPosition
-                           ? d.translation <= 0.0 && d.rotation == ds.roll
-                           : d.translation <= 0.0 && d.rotation == 0.0;
-    insts_[i].parked = ds.depth <= 0.0 && still;
-  }
-  // A fast hand: fine steps with the masses for them (physics.md 5.4).
-  use_masses(split_for(hand_speed()));
-  advance();
-  // A sudden load on a hand (a scaled mass stopped or let go): the step is taken again, split
-  // at least twice as finely, and that split held for a while (physics.md 5.4).
-  if (split_ < sc_.fine_steps && sc_.fine_step_jump > 0.0) {
-    bool sudden = false;
-    for (std::size_t i = 0; i < insts_.size(); ++i) {
-      const Instrument& in = insts_[i];
-      const bool inserted = !in.parked && in.drive.depth > 0.0 && backup_drive_[i].depth > 0.0;
-      sudden = sudden ||
-               (inserted && std::abs(in.drive.axial_force_raw - backup_drive_[i].axial_force_raw) >
-                                sc_.fine_step_jump);
-    }
-    if (sudden) {
-      for (std::size_t i = 0; i < insts_.size(); ++i) {
-        insts_[i].state = backup_[i];
-        insts_[i].drive = backup_drive_[i];
-      }
-      hold_until_ = time_ + sc_.fine_step_hold;
-      held_split_ = std::min(sc_.fine_steps, std::max(2 * split_, threshold_split()));
-      use_masses(split_for(hand_speed()));
-      advance();
-      ++metrics_.resplit_steps;
-    }
-  }
-
-  bool finite = true;
-  for (const Instrument& in : insts_) finite = finite && finite_state(in.state);
-  if (!finite) {
-    // Undo the step and hold the instruments still; the caller sees it in the metrics.
-    for (std::size_t i = 0; i < insts_.size(); ++i) {
-      insts_[i].state = backup_[i];
-      insts_[i].drive = backup_drive_[i];
-      for (Vec3& v : insts_[i].state.v) v.setZero();
-      for (Vec3& w : insts_[i].state.omega) w.setZero();
-    }
-    ++metrics_.rollbacks;
-  }
-  time_ += dt;
-  // The injection enters where the outermost instrument's tip is (the guiding catheter).
-  TreeLocation at;
-  if (cmds.syringe_flow_ml_s > 0.0 && contrast_.injected_segment() < 0) {
-    int outer = 0;
-    for (std::size_t i = 0; i < insts_.size(); ++i)
-      if (sc_.instruments[i].inside.empty() && insts_[i].drive.depth > insts_[outer].drive.depth)
-        outer = static_cast<int>(i);
-    at = tip_location(outer).loc;
-  }
-  contrast_.step(cmds.syringe_flow_ml_s, at);
-  metrics_.contrast_volume = contrast_.volume();
-  update_metrics(old_tips);
-  metrics_.steps += 1;
-  metrics_.sim_time = time_;
-  metrics_.wall_time += (now_us() - t0) * 1e-6;
-}
-
-ContrastModel::ContrastModel(const VesselTree& tree, const ContrastSettings& settings, double dt)
-    : tree_(&tree), s_(settings), dt_(dt) {
-  c_.assign(tree.num_segments(), 0.0f);
-  arrival_.assign(tree.num_segments(), -1.0);
-  history_.assign(static_cast<std::size_t>(std::ceil(2.0 / dt)) + 1, 0.0f);
-}
-
-void ContrastModel::step(double flow, const TreeLocation& at) {
-  const VesselTree& tree = *tree_;
-  const std::size_t nh = history_.size();
-  if (flow > 0.0 && segment_ < 0 && at.segment >= 0) {
-    segment_ = at.segment;
-    // Transport delay: the centreline distance from the injection point to each segment's
-    // start, for the injected segment and everything below it (parents precede children).
-    std::fill(arrival_.begin(), arrival_.end(), -1.0);
-    arrival_[at.segment] = 0.0;
-    for (int s = at.segment + 1; s < tree.num_segments(); ++s) {
-      const int p = tree.segments[s].parent;
-      if (p < 0 || arrival_[p] < 0.0) continue;
-      const double from = p == at.segment ? at.distance : 0.0;
-      arrival_[s] = arrival_[p] + std::max(0.0, attach_distance(tree, s) - from) / s_.blood_speed;
-    }
-  }
-  if (flow > 0.0) volume_ += flow * dt_;
-  pos_ = (pos_ + 1) % nh;
-  history_[pos_] = static_cast<float>(std::max(0.0, flow));
-  if (segment_ < 0) return;
-  const bool coronary = tree.segments[segment_].kind == VesselKind::kCoronary;
-  const double blood = coronary ? s_.blood_flow : kCardiacOutputMlS;
-  bool any = false;
-  for (int s = 0; s < tree.num_segments(); ++s) {
-    if (arrival_[s] < 0.0) continue;
-    const std::size_t lag = std::min(nh - 1, static_cast<std::size_t>(arrival_[s] / dt_));
-    const double q = history_[(pos_ + nh - lag) % nh];
-    const double target = s_.concentration * q / (q + blood);
-    const double c = c_[s];
-    const double tau = target > c ? kContrastFill : s_.washout;
-    c_[s] = static_cast<float>(c + (target - c) * (1.0 - std::exp(-dt_ / tau)));
-    any = any || c_[s] > 1e-4f || q > 0.0;
-  }
-  if (!any) segment_ = -1;  // washed out: the next injection starts afresh
-}
-
-double Simulator::hand_speed() const {
-  double v = 0.0;
-  for (std::size_t i = 0; i < insts_.size(); ++i) {
-    if (insts_[i].parked) continue;
-    const DriveCommand& d = drive_[i];
-    const double rate = d.mode == DriveCommand::Mode::kPosition
-                            ? (d.translation - insts_[i].drive.depth) / sc_.dt
-                            : d.translation;
-    v = std::max(v, std::min(std::abs(rate), insts_[i].sheath.max_speed));
-  }
-  return v;
-}
-
-void Simulator::advance() {
-  const double dt = sc_.dt;
-  const int n = split_;
-  settings_.rod.dt = dt / n;
-  set_quasi_static_damping(settings_.rod);
-  std::fill(fine_force_.begin(), fine_force_.end(), 0.0);
-  std::fill(fine_torque_.begin(), fine_torque_.end(), 0.0);
-  for (int k = 1; k <= n; ++k) {
-    // The hand's command spread evenly over the fine steps: a position k / n of the way there.
-    for (std::size_t i = 0; i < insts_.size(); ++i) {
-      DriveCommand& c = sub_drive_[i];
-      c = drive_[i];
-      if (c.mode == DriveCommand::Mode::kPosition && k < n) {
-        const DriveState& start = backup_drive_[i];
-        c.translation = start.depth + (drive_[i].translation - start.depth) * k / n;
-        c.rotation = start.roll + (drive_[i].rotation - start.roll) * k / n;
-      }
-    }
-    if (beating_wall_) beating_wall_->set_time(time_ + dt * k / n);
-    step_instruments(insts_, couplings_, wall_, settings_, sub_drive_);
-    for (std::size_t i = 0; i < insts_.size(); ++i) {
-      fine_force_[i] += insts_[i].drive.axial_force_raw / n;
-      fine_torque_[i] += insts_[i].drive.torque_raw / n;
-    }
-  }
-  // The hand force of a split step is its fine steps' mean: the step's impulse over dt, as a
-  // sensor that integrates over the step reads it. (The low-pass, if any, ran on the fine steps.)
-  if (n > 1) {
-    for (std::size_t i = 0; i < insts_.size(); ++i) {
-      DriveState& ds = insts_[i].drive;
-      ds.axial_force_raw = fine_force_[i];
-      ds.torque_raw = fine_torque_[i];
-      if (settings_.feedback_cutoff_hz <= 0.0) {
-        ds.axial_force = ds.axial_force_raw;
-        ds.torque = ds.torque_raw;
-      }
-    }
-  }
-}
-
-int Simulator::threshold_split() const {
-  return std::clamp(
-      static_cast<int>(std::ceil(sc_.fine_step_speed * sc_.dt / sc_.fine_step_travel)), 2,
-      std::max(2, sc_.fine_steps));
-}
-
-int Simulator::split_for(double speed) const {
-  if (sc_.fine_steps <= 1) return 1;
-  // For a while after a sudden load: the split it asked for.
-  const int held = time_ < hold_until_ ? held_split_ : 1;
-  // A fast hand: split from above fine_step_speed until the hands are below half of it.
-  const bool fast = speed > (split_ > held ? 0.5 : 1.0) * sc_.fine_step_speed;
-  if (!fast) return held;
-  // As many fine steps as keep the hand's travel per fine step within fine_step_travel. A split
-  // is only made coarser once a quarter more speed would not need it, so a hand whose speed
-  // wavers about a boundary does not swap masses back and forth.
-  // (A hand's speed is read from its commands: 1e-6 of a step's travel is rounding.)
-  const double per = speed * sc_.dt / sc_.fine_step_travel - 1e-6;
-  int n = std::clamp(static_cast<int>(std::ceil(per)), 2, sc_.fine_steps);
-  if (n < split_ && std::ceil(1.25 * per) >= split_) n = split_;
-  return std::max(n, held);
-}
-
-void Simulator::use_masses(int n) {
-  if (n == split_) return;
-  for (std::size_t i = 0; i < insts_.size(); ++i) {
-    RodModel& md = insts_[i].model;
-    RodState& st = insts_[i].state;
-    const MassSet& to = masses_[n - 1][i];
-    // Where a mass grows the momentum is kept, where it shrinks the velocity: a change of split
-    // takes energy out either way, never puts it in.
-    for (int j = 0; j < md.n; ++j)
-      if (to.node_mass[j] > md.node_mass[j]) st.v[j] *= md.node_mass[j] / to.node_mass[j];
-    for (int j = 0; j < md.m; ++j)
-      for (int a = 0; a < 3; ++a)
-        if (to.inertia[j][a] > md.inertia[j][a])
-          st.omega[j][a] = st.omega[j][a] * md.inertia[j][a] / to.inertia[j][a];
-    // Same sizes: the copies reuse the model's storage (no allocation while stepping).
-    md.node_mass = to.node_mass;
-    md.inv_mass = to.inv_mass;
-    md.inertia = to.inertia;
-    md.inv_inertia = to.inv_inertia;
-  }
-  split_ = n;
-}
-
-void Simulator::update_metrics(const std::vector<Vec3>& old_tips) {
-  const double dt = settings_.rod.dt;  // the last (fine) step's: the impulses are its
-  for (std::size_t i = 0; i < insts_.size(); ++i) {
-    const Instrument& in = insts_[i];
-    if (in.drive.depth > 0.0)
-      metrics_.tip_path[i] += (tip(static_cast<int>(i)) - old_tips[i]).norm();
+// Tip paths and peak forces of the step just taken; `old_tips` where the tips were before it.
+void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
+                    std::span<const Vec3> old_tips) {
+  // The last (fine) step's dt: the contact impulses are its.
+  const double dt = md.solver.settings[st.solver.split - 1].rod.dt;
+  SimMetrics& m = st.metrics;
+  for (std::size_t i = 0; i < st.solver.instruments.size(); ++i) {
+    const InstrumentState& in = st.solver.instruments[i];
+    if (in.drive.depth > 0.0) m.tip_path[i] += (in.rod.x.back() - old_tips[i]).norm();
     double f = 0.0;
-    for (const NodeContact& c : in.contacts) f = std::max(f, c.lambda_n / dt);
-    metrics_.peak_wall_force[i] = std::max(metrics_.peak_wall_force[i], f);
-    metrics_.peak_axial_force[i] =
-        std::max(metrics_.peak_axial_force[i], std::abs(in.drive.axial_force));
-    metrics_.peak_torque[i] = std::max(metrics_.peak_torque[i], std::abs(in.drive.torque));
+    for (const NodeContact& c : ws.contacts(static_cast<int>(i))) f = std::max(f, c.lambda_n / dt);
+    m.peak_wall_force[i] = std::max(m.peak_wall_force[i], f);
+    m.peak_axial_force[i] = std::max(m.peak_axial_force[i], std::abs(in.drive.axial_force));
+    m.peak_torque[i] = std::max(m.peak_torque[i], std::abs(in.drive.torque));
     // NaN while outside: no jump is counted across an insertion or a withdrawal.
-    double& last = last_axial_force_[i];
+    double& last = m.last_axial_force[i];
     if (in.drive.depth > 0.0) {
       const double jump = std::abs(in.drive.axial_force - last);
-      if (jump > metrics_.peak_axial_jump[i]) metrics_.peak_axial_jump[i] = jump;
+      if (jump > m.peak_axial_jump[i]) m.peak_axial_jump[i] = jump;
       last = in.drive.axial_force;
     } else {
       last = std::nan("");
     }
   }
-  if (time_ < next_landmark_check_) return;
-  next_landmark_check_ = time_ + kLandmarkInterval;
-  for (std::size_t k = 0; k < sc_.landmarks.size(); ++k) {
-    LandmarkRecord& rec = metrics_.landmarks[k];
+}
+
+void check_landmarks(const SimModel& md, SimState& st) {
+  SimMetrics& m = st.metrics;
+  if (st.time() < m.next_landmark_check) return;
+  m.next_landmark_check = st.time() + kLandmarkInterval;
+  for (std::size_t k = 0; k < m.landmarks.size(); ++k) {
+    LandmarkRecord& rec = m.landmarks[k];
     if (rec.reached) continue;
-    const Landmark& l = sc_.landmarks[k];
-    const auto [i, seg] = landmark_ids_[k];
-    if (insts_[i].drive.depth <= 0.0) continue;
-    const TreeHit h = tip_location(i);
-    if (h.loc.segment == seg && h.loc.distance >= ostium_distance(tree_, seg) + l.distance &&
+    const auto [i, seg] = md.landmark_ids[k];
+    if (st.solver.instruments[i].drive.depth <= 0.0) continue;
+    const TreeHit h = tip_location(md, st, i);
+    if (h.loc.segment == seg &&
+        h.loc.distance >= ostium_distance(md.tree, seg) + md.scenario.landmarks[k].distance &&
         h.outside < 0.5e-3) {
       rec.reached = true;
-      rec.time = time_;
+      rec.time = st.time();
     }
   }
+}
+
+}  // namespace
+
+void sim_step(const SimModel& md, SimState& st, SimWorkspace& ws, const StepCommands& cmds,
+              SimStepProfile* prof) {
+  assert(cmds.drive.size() == md.solver.instruments.size());
+  internal::SimScratch& s = ws.scratch();
+  auto tick = [&]() { return prof ? now_us() : 0.0; };
+  const double t0 = tick();
+  const std::size_t n = st.solver.instruments.size();
+  for (std::size_t i = 0; i < n; ++i) s.old_tips[i] = tip(st, static_cast<int>(i));
+  // 1. instruments: sub-steps, the wall at each fine step's time, rollback
+  const StepInfo info = solver_step(md.solver, st.solver, s.solver, s.wall, cmds.drive,
+                                    prof ? &prof->instruments : nullptr);
+  st.metrics.resplit_steps += info.resplit ? 1 : 0;
+  st.metrics.rollbacks += info.rolled_back ? 1 : 0;
+  const double t1 = tick();
+  // 2. contrast: an injection enters where the outermost instrument's tip is (the guide)
+  TreeLocation at;
+  if (cmds.syringe_flow > 0.0 && st.contrast.segment < 0) {
+    int outer = 0;
+    for (std::size_t i = 0; i < n; ++i)
+      if (md.outer_of[i] < 0 &&
+          st.solver.instruments[i].drive.depth > st.solver.instruments[outer].drive.depth)
+        outer = static_cast<int>(i);
+    at = tip_location(md, st, outer).loc;
+  }
+  contrast_step(md.tree, md.scenario.contrast, md.dt(), cmds.syringe_flow, at, st.contrast);
+  const double t2 = tick();
+  // 3. metrics, 4. landmarks
+  update_metrics(md, st, s.solver, s.old_tips);
+  st.metrics.steps += 1;
+  const double t3 = tick();
+  check_landmarks(md, st);
+  if (prof) {
+    const double t4 = tick();
+    prof->solver = t1 - t0;
+    prof->contrast = t2 - t1;
+    prof->metrics = t3 - t2;
+    prof->landmarks = t4 - t3;
+    prof->total = t4 - t0;
+  }
+}
+
+// --- Simulator -----------------------------------------------------------------------------------
+
+Simulator::Simulator(Scenario scenario) : Simulator(build_sim_model(std::move(scenario))) {}
+
+Simulator::Simulator(std::shared_ptr<const SimModel> model)
+    : model_(std::move(model)),
+      state_(make_sim_state(*model_)),
+      ws_(std::make_unique<SimWorkspace>(*model_)) {}
+
+Simulator::~Simulator() = default;
+
+void Simulator::step(const StepCommands& cmds) {
+  const std::size_t n = state_.solver.instruments.size();
+  if (cmds.drive.size() != n)
+    throw InputError("commands", "drive",
+                     "expected one command per instrument (" + std::to_string(n) + "), got " +
+                         std::to_string(cmds.drive.size()));
+  for (std::size_t i = 0; i < n; ++i)
+    if (!std::isfinite(cmds.drive[i].translation) || !std::isfinite(cmds.drive[i].rotation))
+      throw InputError("commands", "drive[" + std::to_string(i) + "]",
+                       "expected finite translation and rotation");
+  if (!std::isfinite(cmds.syringe_flow) || !std::isfinite(cmds.balloon_pressure))
+    throw InputError("commands", "syringe_flow", "expected finite flow and pressure");
+  const double t0 = now_us();
+  SimStepProfile p;
+  sim_step(*model_, state_, *ws_, cmds, &p);
+  profile_.wall_time += (now_us() - t0) * 1e-6;
+  profile_.steps += 1;
+  SimStepProfile& sum = profile_.sum;
+  sum.solver += p.solver;
+  sum.contrast += p.contrast;
+  sum.metrics += p.metrics;
+  sum.landmarks += p.landmarks;
+  sum.total += p.total;
+  StepProfile& a = sum.instruments;
+  const StepProfile& b = p.instruments;
+  a.drive += b.drive;
+  a.forces += b.forces;
+  a.integrate_velocities += b.integrate_velocities;
+  a.collision += b.collision;
+  a.constraints += b.constraints;
+  a.distance += b.distance;
+  a.contacts += b.contacts;
+  a.integrate_positions += b.integrate_positions;
+  a.total += b.total;
+  a.num_contacts += b.num_contacts;
+  a.num_queries += b.num_queries;
+}
+
+void Simulator::restore(const SimState& snap) {
+  const SimModel& md = *model_;
+  auto refuse = [](const std::string& why) {
+    throw InputError("snapshot", "state",
+                     "expected a state of this simulator's model (" + why + ")");
+  };
+  if (snap.solver.instruments.size() != md.solver.instruments.size()) refuse("instrument count");
+  for (std::size_t i = 0; i < snap.solver.instruments.size(); ++i) {
+    const InstrumentState& in = snap.solver.instruments[i];
+    const RodModel& r = md.solver.instruments[i].rod();
+    if (in.rod.x.size() != static_cast<std::size_t>(r.n) ||
+        in.rod.q.size() != static_cast<std::size_t>(r.m) ||
+        in.clearance.size() != static_cast<std::size_t>(r.n))
+      refuse("node count of instrument " + std::to_string(i));
+  }
+  if (snap.solver.split < 1 || snap.solver.split > md.solver.max_split()) refuse("split");
+  if (snap.contrast.concentration.size() != static_cast<std::size_t>(md.tree.num_segments()) ||
+      snap.contrast.history.size() != state_.contrast.history.size())
+    refuse("contrast");
+  if (snap.metrics.landmarks.size() != md.landmark_ids.size() ||
+      snap.metrics.tip_path.size() != md.solver.instruments.size())
+    refuse("metrics");
+  state_ = snap;  // same sizes: the copy reuses the state's storage
+}
+
+std::span<const NodeContact> Simulator::contacts(int i) const {
+  return ws_->solver().contacts(i);
+}
+
+void Simulator::feedback(std::vector<HandFeedback>& out) const {
+  out.resize(state_.solver.instruments.size());
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    const DriveState& d = state_.solver.instruments[i].drive;
+    out[i] = {d.axial_force, d.torque};
+  }
+}
+
+std::vector<Vec3> Simulator::route_to(const TreeLocation& to, double spacing) const {
+  return route(model_->tree, model_->tree.access, to, spacing);
 }
 
 }  // namespace vcsim

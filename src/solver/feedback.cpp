@@ -1,5 +1,5 @@
 // Force and torque at the hand (physics.md 6.1).
-#include "feedback.h"
+#include "scratch.h"
 
 #include <algorithm>
 #include <array>
@@ -38,22 +38,22 @@ Vec3 moment_change(const RodModel& md, const RodState& st, int j, Vec3& g_next) 
 // Loads as the step applied them: wall contact impulses less the penetration fix-up, coupling
 // impulses less their violation fix-up, applied loads and gravity (SolverSettings::HandForce::
 // kImpulses), summed: in equilibrium, the force the inserted part exerts across the boundary.
-Vec3 impulse_loads(const Instrument& in, const SolverSettings& set, bool coupled) {
-  const RodModel& md = in.model;
-  const RodState& st = in.state;
+Vec3 impulse_loads(const Inst& in, const SolverSettings& set, bool coupled) {
+  const RodModel& md = in.model();
+  const RodState& st = in.rod();
   const double dt = set.rod.dt;
   Vec3 f = Vec3::Zero();
-  for (const NodeContact& c : in.contacts)
+  for (const NodeContact& c : in.w->contacts)
     f += ((c.lambda_n - c.lambda_bias) * c.normal + c.lambda_t) / dt;
   if (coupled)
-    for (int i = 0; i < md.n; ++i) f += in.coupling_impulse[i] / dt;
+    for (int i = 0; i < md.n; ++i) f += in.w->coupling_impulse[i] / dt;
   // Applied loads one by one; gravity through the free part's mass. The loops skip what adds
   // nothing: in the compression experiment they cost as much as the rod's position update.
-  for (int i = in.drive.first_free; i < md.n; ++i)
+  for (int i = in.drive().first_free; i < md.n; ++i)
     if (st.f_ext[i] != Vec3::Zero()) f += st.f_ext[i];
   if (set.rod.gravity != Vec3::Zero()) {
     double mass = 0.0;
-    for (int i = in.drive.first_free; i < md.n; ++i) mass += md.node_mass[i];
+    for (int i = in.drive().first_free; i < md.n; ++i) mass += md.node_mass[i];
     f += mass * set.rod.gravity;
   }
   return f;
@@ -109,22 +109,25 @@ void solve_reactions(const Vec3& r_perp, const Vec3& t, const Candidates& c, int
 // the s >= 0 that leaves Q_{i-1} - P_{i-1} closest to edge i-1's direction (a tension); what no
 // reaction can balance stays in Q, so the result is the sum of the loads and these reactions, the
 // boundary force of the part in equilibrium. Gaps the step did not close get no reaction.
-// `cp`/`outer`: the coupling holding this rod in another's lumen (or null); the outer rod receives
-// the reactions as loads (Instrument::felt_load). Returns Q at the boundary edge, the force the
-// inserted part exerts on the held part.
-Vec3 quasi_static_force(Instrument& in, const Coupling* cp, Instrument* outer,
+// `pair`/`outer`: the coupling holding this rod in another's lumen (or null); the outer rod
+// receives the reactions as loads (InstrumentScratch::felt_load). Returns Q at the boundary edge,
+// the force the inserted part exerts on the held part.
+Vec3 quasi_static_force(const Inst& in, const Pair* pair, const Inst* outer,
                         const SolverSettings& set) {
-  const RodModel& md = in.model;
-  const RodState& st = in.state;
+  const RodModel& md = in.model();
+  const RodState& st = in.rod();
+  InstrumentScratch& w = *in.w;
   const double dt = set.rod.dt;
-  std::fill(in.wall_contact_of.begin(), in.wall_contact_of.end(), -1);
-  for (int k = 0; k < static_cast<int>(in.contacts.size()); ++k)
-    in.wall_contact_of[in.contacts[k].node] = k;
-  std::fill(in.coupling_of.begin(), in.coupling_of.end(), -1);
-  std::fill(in.rim_of.begin(), in.rim_of.end(), -1);
-  if (cp)
-    for (int k = 0; k < static_cast<int>(cp->contacts.size()); ++k)
-      (cp->contacts[k].a > 0.0 ? in.rim_of : in.coupling_of)[cp->contacts[k].node] = k;
+  const std::vector<CoaxialContact>* coax = pair ? &pair->s->contacts : nullptr;
+  const double lumen_mu = pair ? pair->cm->mu : 0.0;
+  std::fill(w.wall_contact_of.begin(), w.wall_contact_of.end(), -1);
+  for (int k = 0; k < static_cast<int>(w.contacts.size()); ++k)
+    w.wall_contact_of[w.contacts[k].node] = k;
+  std::fill(w.coupling_of.begin(), w.coupling_of.end(), -1);
+  std::fill(w.rim_of.begin(), w.rim_of.end(), -1);
+  if (coax)
+    for (int k = 0; k < static_cast<int>(coax->size()); ++k)
+      ((*coax)[k].a > 0.0 ? w.rim_of : w.coupling_of)[(*coax)[k].node] = k;
   // A reaction candidate: direction d (the normal less mu times the regularised sliding
   // direction), the step's own normal reaction (N), and the lumen or rim contact it belongs to.
   struct Candidate {
@@ -142,33 +145,33 @@ Vec3 quasi_static_force(Instrument& in, const Coupling* cp, Instrument* outer,
     if (c.lambda_n <= 0.0) return false;
     Vec3 v_in = st.v[c.node];
     if (c.a > 0.0) v_in = (1 - c.a) * v_in + c.a * st.v[c.node + 1];
-    const Vec3 v_out = (1 - c.t) * outer->state.v[c.segment] + c.t * outer->state.v[c.segment + 1];
+    const Vec3 v_out = (1 - c.t) * outer->rod().v[c.segment] + c.t * outer->rod().v[c.segment + 1];
     // The catheter pushes the wire back toward its centreline (or off its rim).
-    out = make(-c.normal, v_in - v_out, cp->mu, c.lambda_n / dt, &c);
+    out = make(-c.normal, v_in - v_out, lumen_mu, c.lambda_n / dt, &c);
     return true;
   };
   // Node i's reactions: its wall or lumen contact, and the rim's where edge i leaves the outer
   // instrument (all of the rim's reaction lies beyond edge i - 1, so node i's balance decides it).
   auto candidates_of = [&](int i, std::array<Candidate, 2>& out) {
     int k = 0;
-    if (const int w = in.wall_contact_of[i]; w >= 0) {
-      const NodeContact& c = in.contacts[w];
+    if (const int wc = w.wall_contact_of[i]; wc >= 0) {
+      const NodeContact& c = w.contacts[wc];
       if (c.lambda_n > 0.0 || c.depth > 0.0)
-        out[k++] = make(c.normal, st.v[i] - c.wall_velocity, in.contact.mu_dynamic,
+        out[k++] = make(c.normal, st.v[i] - c.wall_velocity, in.im->contact.mu_dynamic,
                         (c.lambda_n - c.lambda_bias) / dt, nullptr);
-    } else if (const int c = in.coupling_of[i]; c >= 0 && coaxial(cp->contacts[c], out[k])) {
+    } else if (const int c = w.coupling_of[i]; c >= 0 && coaxial((*coax)[c], out[k])) {
       ++k;
     }
-    if (const int r = in.rim_of[i]; r >= 0 && coaxial(cp->contacts[r], out[k])) ++k;
+    if (const int r = w.rim_of[i]; r >= 0 && coaxial((*coax)[r], out[k])) ++k;
     return k;
   };
   Vec3 q = Vec3::Zero();  // Q_i: the internal force of the edge distal to node i (none at the tip)
-  const int first = std::max(1, in.drive.first_free);
+  const int first = std::max(1, in.drive().first_free);
   Vec3 g = vertex_moment(md, st, md.n - 1);  // G at the distal vertex of edge i - 1
   std::array<Candidate, 2> cand;
   std::array<double, 2> s{};
   for (int i = md.n - 1; i >= first; --i) {
-    q += st.f_ext[i] + md.node_mass[i] * set.rod.gravity + in.felt_load[i];
+    q += st.f_ext[i] + md.node_mass[i] * set.rod.gravity + w.felt_load[i];
     const Vec3 e = st.x[i] - st.x[i - 1];
     const double len = e.norm();
     if (len < 1e-12) {
@@ -195,7 +198,7 @@ Vec3 quasi_static_force(Instrument& in, const Coupling* cp, Instrument* outer,
         if (!cand[k].cc) wall[nw++] = cand[k];
       std::array<double, 2> sw{};
       if (nw > 0) solve_reactions(r_perp, t, wall, nw, sw);
-      for (int k = 0, w = 0; k < nc; ++k) s[k] = cand[k].cc ? 0.0 : sw[w++];
+      for (int k = 0, kw = 0; k < nc; ++k) s[k] = cand[k].cc ? 0.0 : sw[kw++];
     } else {
       const Vec3 t = e / len;
       const Vec3 shear = t.cross(dg) / len;
@@ -205,32 +208,32 @@ Vec3 quasi_static_force(Instrument& in, const Coupling* cp, Instrument* outer,
     for (int k = 0; k < nc; ++k) {
       const Vec3 reaction = s[k] * cand[k].d;
       q += reaction;
-      if (const CoaxialContact* cc = cand[k].cc) {
-        outer->felt_load[cc->segment] -= (1 - cc->t) * reaction;
-        outer->felt_load[cc->segment + 1] -= cc->t * reaction;
+      if (const CoaxialContact* c = cand[k].cc) {
+        outer->w->felt_load[c->segment] -= (1 - c->t) * reaction;
+        outer->w->felt_load[c->segment + 1] -= c->t * reaction;
       }
     }
   }
   // Reactions of inner instruments on the held part (a wire near the access point).
-  for (int i = 0; i < first; ++i) q += in.felt_load[i];
+  for (int i = 0; i < first; ++i) q += w.felt_load[i];
   return q;
 }
 
 // The twisting moment of the rod at the boundary vertex between the last held frame and the first
 // free one (physics.md eq. 5, K3 (Omega_3 - Omega0_3)): what a torque sensor at the hub reads. > 0
 // when the inserted part lags behind a positive roll of the hand.
-double hub_twist_moment(const Instrument& in) {
-  const RodModel& md = in.model;
-  const int k = std::clamp(in.drive.first_free - 1, 1, md.m - 1);
-  const Vec3 w = darboux(in.state.q[k - 1], in.state.q[k], md.vertex_length[k]);
+double hub_twist_moment(const Inst& in) {
+  const RodModel& md = in.model();
+  const int k = std::clamp(in.drive().first_free - 1, 1, md.m - 1);
+  const Vec3 w = darboux(in.rod().q[k - 1], in.rod().q[k], md.vertex_length[k]);
   return -md.vertex_stiffness[k].z() * (w.z() - md.rest_darboux[k].z());
 }
 
-void publish(Instrument& in, const SolverSettings& set, double force, double torque) {
-  DriveState& dr = in.drive;
+void publish(const Inst& in, const SolverSettings& set, double force, double torque) {
+  DriveState& dr = in.drive();
   dr.axial_force_raw = force;
   dr.torque_raw = torque;
-  if (set.feedback_cutoff_hz > 0.0 && in.state.steps > 0) {
+  if (set.feedback_cutoff_hz > 0.0 && in.rod().steps > 0) {
     // y += (1 - exp(-2 pi fc dt)) (x - y): the exact step response of a first-order filter.
     const double g = 1.0 - std::exp(-2.0 * std::numbers::pi * set.feedback_cutoff_hz * set.rod.dt);
     dr.axial_force += g * (dr.axial_force_raw - dr.axial_force);
@@ -243,14 +246,14 @@ void publish(Instrument& in, const SolverSettings& set, double force, double tor
 
 }  // namespace
 
-void hand_feedback(std::span<Instrument> insts, std::span<const Coupling> couplings,
+void hand_feedback(std::span<Inst> insts, std::span<const Pair> couplings,
                    const SolverSettings& set) {
   if (set.hand_force == SolverSettings::HandForce::kImpulses) {
-    for (Instrument& in : insts) {
-      if (in.parked || !in.driven) continue;
+    for (const Inst& in : insts) {
+      if (in.parked() || !in.driven()) continue;
       // The hand holds the rod against these loads: > 0 when they push the rod back out.
       publish(in, set,
-              -impulse_loads(in, set, !couplings.empty()).dot(in.sheath.frame * Vec3::UnitZ()),
+              -impulse_loads(in, set, !couplings.empty()).dot(in.im->sheath.frame * Vec3::UnitZ()),
               hub_twist_moment(in));
     }
     return;
@@ -261,26 +264,27 @@ void hand_feedback(std::span<Instrument> insts, std::span<const Coupling> coupli
   std::array<bool, kMax> done{};
   const std::size_t n = std::min(insts.size(), kMax);
   for (std::size_t k = 0; k < n; ++k) {
-    std::fill(insts[k].felt_load.begin(), insts[k].felt_load.end(), Vec3::Zero());
-    done[k] = insts[k].parked || !insts[k].driven;
+    std::fill(insts[k].w->felt_load.begin(), insts[k].w->felt_load.end(), Vec3::Zero());
+    done[k] = insts[k].parked() || !insts[k].driven();
   }
   for (std::size_t pass = 0; pass < n; ++pass) {
     bool progress = false;
     for (std::size_t k = 0; k < n; ++k) {
       if (done[k]) continue;
       bool ready = true;
-      const Coupling* as_inner = nullptr;
-      for (const Coupling& c : couplings) {
-        const auto inner = static_cast<std::size_t>(c.inner);
-        if (static_cast<std::size_t>(c.outer) == k && (inner >= n || !done[inner])) ready = false;
-        if (static_cast<std::size_t>(c.inner) == k && !insts[c.outer].parked) as_inner = &c;
+      const Pair* as_inner = nullptr;
+      for (const Pair& c : couplings) {
+        const auto inner = static_cast<std::size_t>(c.cm->inner);
+        if (static_cast<std::size_t>(c.cm->outer) == k && (inner >= n || !done[inner]))
+          ready = false;
+        if (inner == k && !insts[c.cm->outer].parked()) as_inner = &c;
       }
       if (!ready) continue;
-      Instrument& in = insts[k];
+      const Inst& in = insts[k];
       const Vec3 f =
-          quasi_static_force(in, as_inner, as_inner ? &insts[as_inner->outer] : nullptr, set);
+          quasi_static_force(in, as_inner, as_inner ? &insts[as_inner->cm->outer] : nullptr, set);
       // > 0 when the inserted part pushes the rod back out.
-      publish(in, set, -f.dot(in.sheath.frame * Vec3::UnitZ()), hub_twist_moment(in));
+      publish(in, set, -f.dot(in.im->sheath.frame * Vec3::UnitZ()), hub_twist_moment(in));
       done[k] = true;
       progress = true;
     }

@@ -1,19 +1,16 @@
-// An instrument driven through a sheath into a lumen: the insertion drive, collision detection
-// with per-node coherence, and contacts with Coulomb friction inside the block iterations
-// (physics.md section 6).
-#include "vcsim/solver.h"
-
-#include "feedback.h"
-
-#include <tbb/blocked_range.h>
+// One fine step of instruments driven through a sheath into a lumen: the insertion drive,
+// collision detection with per-node coherence, contacts with Coulomb friction and the coaxial
+// coupling inside the block iterations (physics.md section 6; docs/architecture.md "The
+// instrument step").
 #include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <array>
 #include <cmath>
 
-namespace vcsim {
+#include "scratch.h"
+
+namespace vcsim::internal {
 
 namespace {
 
@@ -33,12 +30,12 @@ double node_radius(const RodModel& md, int i) {
 // Advances depth and roll from the command and holds every node outside the body on the sheath
 // axis: node i (arc length s_i from the proximal end) is outside while s_i <= L - depth, at
 // access_point - (L - depth - s_i) axis. Frames between two held nodes are turned by the roll.
-void drive_begin(Instrument& inst, const DriveCommand& cmd, double dt) {
-  const RodModel& md = inst.model;
-  RodState& st = inst.state;
-  RodWorkspace& ws = inst.ws;
-  DriveState& dr = inst.drive;
-  const Sheath& sh = inst.sheath;
+void drive_begin(const Inst& in, const DriveCommand& cmd, double dt) {
+  const RodModel& md = in.model();
+  RodState& st = in.rod();
+  RodWorkspace& ws = in.ws();
+  DriveState& dr = in.drive();
+  const Sheath& sh = in.im->sheath;
 
   double rate = cmd.mode == DriveCommand::Mode::kPosition ? (cmd.translation - dr.depth) / dt
                                                           : cmd.translation;
@@ -75,19 +72,20 @@ void drive_begin(Instrument& inst, const DriveCommand& cmd, double dt) {
 }
 
 // After positions: held frames take the sheath frame turned by the roll (exactly, no drift).
-void drive_end(Instrument& inst) {
-  const Quat held = (Quat(Eigen::AngleAxisd(inst.drive.roll, inst.sheath.frame * Vec3::UnitZ())) *
-                     inst.sheath.frame)
-                        .normalized();
-  for (int j = 0; j + 1 < inst.drive.first_free && j < inst.model.m; ++j) inst.state.q[j] = held;
+void drive_end(const Inst& in) {
+  const Sheath& sh = in.im->sheath;
+  const DriveState& dr = in.drive();
+  const Quat held =
+      (Quat(Eigen::AngleAxisd(dr.roll, sh.frame * Vec3::UnitZ())) * sh.frame).normalized();
+  for (int j = 0; j + 1 < dr.first_free && j < in.model().m; ++j) in.rod().q[j] = held;
 }
 
 // --- contacts ------------------------------------------------------------------------------------
 
 // True for a free node inside the introducer sheath (Sheath::length of inserted arc length).
-bool in_sheath(const Instrument& inst, int i) {
-  return inst.driven &&
-         inst.model.node_s[i] - (inst.model.length - inst.drive.depth) <= inst.sheath.length;
+bool in_sheath(const Inst& in, int i) {
+  return in.driven() &&
+         in.model().node_s[i] - (in.model().length - in.drive().depth) <= in.im->sheath.length;
 }
 
 // The introducer sheath (physics.md 6.2): a straight tube on the axis from the access point. Its
@@ -95,14 +93,15 @@ bool in_sheath(const Instrument& inst, int i) {
 // meet neither the vessel wall nor, through it, the tissue around the puncture. Without it the
 // first free node is held only by the vessel, and a catheter loaded from its tip (a J wire pulled
 // back into it) folds there, at the access point.
-void add_sheath_contacts(Instrument& inst, const SolverSettings& set) {
-  const Sheath& sh = inst.sheath;
-  if (sh.length <= 0.0 || !inst.driven) return;
-  const RodModel& md = inst.model;
-  const RodState& st = inst.state;
+void add_sheath_contacts(const Inst& in, const SolverSettings& set) {
+  const Sheath& sh = in.im->sheath;
+  if (sh.length <= 0.0 || !in.driven()) return;
+  const RodModel& md = in.model();
+  const RodState& st = in.rod();
+  InstrumentScratch& w = *in.w;
   const Vec3 axis = sh.frame * Vec3::UnitZ();
-  for (int i = inst.drive.first_free; i < md.n && in_sheath(inst, i); ++i) {
-    if (inst.ws.inv_mass[i] == 0.0 || inst.sheathed[i]) continue;
+  for (int i = in.drive().first_free; i < md.n && in_sheath(in, i); ++i) {
+    if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i]) continue;
     const Vec3 rel = st.x[i] - sh.access_point;
     const Vec3 radial = rel - rel.dot(axis) * axis;
     const double rho = radial.norm();
@@ -110,66 +109,68 @@ void add_sheath_contacts(Instrument& inst, const SolverSettings& set) {
     const double depth = node_radius(md, i) - (sh.inner_radius - rho);
     const double reach = set.contact_margin + st.v[i].norm() * set.rod.dt;
     if (depth > -reach)
-      inst.contacts.push_back({i, -radial / rho, depth, 0.0, Vec3::Zero(), Vec3::Zero()});
+      w.contacts.push_back({i, -radial / rho, depth, 0.0, Vec3::Zero(), Vec3::Zero()});
   }
 }
 
 // Finds the contacts of the free nodes. A node is queried with a radius reaching
 // coherence_margin beyond its contact reach; if that finds no wall, the node is skipped until it
 // (or the wall) has moved far enough to close the gap.
-void detect_contacts(Instrument& inst, VesselWall& wall, const SolverSettings& set,
+void detect_contacts(const Inst& in, VesselWall& wall, const SolverSettings& set,
                      StepProfile* prof) {
-  const RodModel& md = inst.model;
-  const RodState& st = inst.state;
+  const RodModel& md = in.model();
+  const RodState& st = in.rod();
+  InstrumentState& s = *in.st;
+  InstrumentScratch& w = *in.w;
   const double dt = set.rod.dt;
-  inst.contacts.clear();
+  w.contacts.clear();
   int nq = 0;
-  inst.wall_travel += wall.speed_bound() * dt;
-  const int first = inst.driven ? inst.drive.first_free : 0;
+  s.wall_travel += wall.speed_bound() * dt;
+  const int first = in.driven() ? in.drive().first_free : 0;
   for (int i = first; i < md.n; ++i) {
-    if (inst.ws.inv_mass[i] == 0.0 || inst.sheathed[i] || in_sheath(inst, i)) continue;
+    if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i] || in_sheath(in, i)) continue;
     const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt;
-    if (inst.clearance[i] > 0.0) {
-      const double moved = (st.x[i] - inst.query_centre[i]).norm() + inst.wall_travel;
-      if (moved + reach < inst.clearance[i]) continue;  // the wall cannot be within reach
+    if (s.clearance[i] > 0.0) {
+      const double moved = (st.x[i] - s.query_centre[i]).norm() + s.wall_travel;
+      if (moved + reach < s.clearance[i]) continue;  // the wall cannot be within reach
     }
-    inst.query_nodes[nq] = i;
-    inst.query_points[nq] = st.x[i];
+    w.query_nodes[nq] = i;
+    w.query_points[nq] = st.x[i];
     // A node that touched the wall last step is queried again next step anyway: the wider
     // radius that buys skipping is wasted on it.
-    const bool was_touching = inst.clearance[i] == 0.0 && st.steps > 0;
-    inst.query_radii[nq] = reach + (was_touching ? 0.0 : set.coherence_margin);
-    inst.query_caches[nq] = &inst.leaf_cache[i];
+    const bool was_touching = s.clearance[i] == 0.0 && st.steps > 0;
+    w.query_radii[nq] = reach + (was_touching ? 0.0 : set.coherence_margin);
+    w.query_caches[nq] = &w.leaf_cache[i];
     ++nq;
   }
   if (nq == 0) return;
-  if (inst.wall_travel > 0.0) {
+  if (s.wall_travel > 0.0) {
     // Clearances measured before the wall moved are stale for every node: start afresh.
-    std::fill(inst.clearance.begin(), inst.clearance.end(), 0.0);
-    for (LeafCache& c : inst.leaf_cache) c.clear();
-    inst.wall_travel = 0.0;
+    std::fill(s.clearance.begin(), s.clearance.end(), 0.0);
+    for (LeafCache& c : w.leaf_cache) c.clear();
+    s.wall_travel = 0.0;
   }
-  wall.query_spheres(std::span<const Vec3>(inst.query_points.data(), nq),
-                     std::span<const double>(inst.query_radii.data(), nq),
-                     std::span<LeafCache* const>(inst.query_caches.data(), nq),
-                     set.leaf_cache_slack, std::span<SphereContact>(inst.hits.data(), nq));
+  wall.query_spheres(std::span<const Vec3>(w.query_points.data(), nq),
+                     std::span<const double>(w.query_radii.data(), nq),
+                     std::span<LeafCache* const>(w.query_caches.data(), nq), set.leaf_cache_slack,
+                     std::span<SphereContact>(w.hits.data(), nq));
   for (int k = 0; k < nq; ++k) {
-    const int i = inst.query_nodes[k];
-    const SphereContact& h = inst.hits[k];
+    const int i = w.query_nodes[k];
+    const SphereContact& h = w.hits[k];
     const double r = node_radius(md, i);
-    inst.query_centre[i] = st.x[i];
+    s.query_centre[i] = st.x[i];
     if (!h.touching) {
-      inst.clearance[i] = inst.query_radii[k];
+      s.clearance[i] = w.query_radii[k];
       continue;
     }
     const double depth = h.centre_outside ? r + h.distance : r - h.distance;
     const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt - r;
     if (!h.centre_outside && depth < -reach) {
-      inst.clearance[i] = h.distance;  // near, but not within reach this step
+      s.clearance[i] = h.distance;  // near, but not within reach this step
       continue;
     }
-    inst.clearance[i] = 0.0;  // in contact: query again next step
-    inst.contacts.push_back({i, h.normal, depth, 0.0, Vec3::Zero(), wall.velocity(h)});
+    s.clearance[i] = 0.0;  // in contact: query again next step
+    w.contacts.push_back({i, h.normal, depth, 0.0, Vec3::Zero(), wall.velocity(h)});
   }
   if (prof) prof->num_queries += nq;
 }
@@ -177,13 +178,15 @@ void detect_contacts(Instrument& inst, VesselWall& wall, const SolverSettings& s
 // One projected Gauss-Seidel sweep over the contacts: non-penetration (a velocity that closes a
 // speculative gap exactly, or removes a fraction of a penetration), then the friction impulse
 // clamped to the Coulomb cone (static cone; beyond it, sliding at mu_dynamic).
-void solve_contacts(Instrument& inst, const SolverSettings& set) {
+void solve_contacts(const Inst& in, const SolverSettings& set) {
   const double dt = set.rod.dt;
   const double beta = set.penetration_correction;
-  const double mu_s = inst.contact.mu_static, mu_d = inst.contact.mu_dynamic;
-  for (NodeContact& c : inst.contacts) {
-    const double w = inst.ws.inv_mass[c.node];
-    Vec3& v = inst.state.v[c.node];
+  const double mu_s = in.im->contact.mu_static, mu_d = in.im->contact.mu_dynamic;
+  const std::vector<double>& inv_mass = in.ws().inv_mass;
+  std::vector<Vec3>& vel = in.rod().v;
+  for (NodeContact& c : in.w->contacts) {
+    const double w = inv_mass[c.node];
+    Vec3& v = vel[c.node];
     // Velocities relative to the wall: a beating wall carries what it touches.
     const double target = c.depth > 0.0 ? beta * c.depth / dt : c.depth / dt;
     const double vn = (v - c.wall_velocity).dot(c.normal);
@@ -202,17 +205,17 @@ void solve_contacts(Instrument& inst, const SolverSettings& set) {
 
 // The penetration fix-up velocity moved the node out; it must not stay as a bounce. The impulse
 // taken back is kept (lambda_bias): it was a position correction, not a load.
-void remove_contact_bias(Instrument& inst, const SolverSettings& set) {
+void remove_contact_bias(const Inst& in, const SolverSettings& set) {
   const double dt = set.rod.dt;
-  for (NodeContact& c : inst.contacts) {
+  for (NodeContact& c : in.w->contacts) {
     if (c.depth <= 0.0) continue;
-    Vec3& v = inst.state.v[c.node];
+    Vec3& v = in.rod().v[c.node];
     const double vn = (v - c.wall_velocity).dot(c.normal);
     const double bias = set.penetration_correction * c.depth / dt;
     if (vn <= 0.0) continue;
     const double removed = std::min(vn, bias);
     v -= removed * c.normal;
-    c.lambda_bias = removed / inst.ws.inv_mass[c.node];
+    c.lambda_bias = removed / in.ws().inv_mass[c.node];
   }
 }
 
@@ -235,9 +238,9 @@ double project_on_edge(const RodState& outer, int k, const Vec3& p, double& t) {
 // the inside of a bend, and an edge whose projection is clamped at its end would pin the node to
 // that vertex along the axis instead of holding it radially. The offset is perpendicular to the
 // edge inside it, toward the vertex where the projection is clamped (at a polyline bend).
-Vec3 offset_from_outer(const Instrument& outer, int k, const Vec3& p, int& best, double& best_t) {
-  const RodState& out = outer.state;
-  const RodModel& mo = outer.model;
+Vec3 offset_from_outer(const Inst& outer, int k, const Vec3& p, int& best, double& best_t) {
+  const RodState& out = outer.rod();
+  const RodModel& mo = outer.model();
   const int m = mo.m;
   double t = 0.0;
   best = k;
@@ -295,18 +298,18 @@ bool beyond_tip(const RodModel& outer, int best, double t) {
 // beyond the tip).
 constexpr double kMouthSlack = 10e-3;
 template <class F>
-void for_each_sheathed(const Instrument& in, const Instrument& out, F&& f) {
-  const RodModel& mi = in.model;
-  const RodModel& mo = out.model;
-  const double in_offset = mi.length - in.drive.depth;    // s at the access point, inner
-  const double out_offset = mo.length - out.drive.depth;  // s at the access point, outer
+void for_each_sheathed(const Inst& in, const Inst& out, F&& f) {
+  const RodModel& mi = in.model();
+  const RodModel& mo = out.model();
+  const double in_offset = mi.length - in.drive().depth;    // s at the access point, inner
+  const double out_offset = mo.length - out.drive().depth;  // s at the access point, outer
   int k = 0;
-  for (int i = in.drive.first_free; i < mi.n; ++i) {
+  for (int i = in.drive().first_free; i < mi.n; ++i) {
     const double sigma = mi.node_s[i] - in_offset;  // inserted arc length of this node
-    if (sigma <= 0.0 || sigma > out.drive.depth + kMouthSlack) continue;
+    if (sigma <= 0.0 || sigma > out.drive().depth + kMouthSlack) continue;
     const double s_out = std::min(sigma + out_offset, mo.length);
     while (k + 1 < mo.m && mo.node_s[k + 1] <= s_out) ++k;
-    f(i, k, sigma > out.drive.depth);
+    f(i, k, sigma > out.drive().depth);
   }
 }
 
@@ -322,22 +325,24 @@ constexpr int kRimEdges = 3;
 // node, with L the rim point on that side and p the edge's point nearest L, the gap is
 // sd - r_w with sd = +-|p - L|, + when L lies on the wall's side of the edge (the wire passes in
 // front of the rim), - when the edge cuts through the wall.
-void add_rim_contact(Coupling& cp, const Instrument& in, const Instrument& out,
-                     const SolverSettings& set) {
-  if (!cp.rim) return;
-  const RodModel& mi = in.model;
-  const RodModel& mo = out.model;
+void add_rim_contact(const Pair& cp, const Inst& in, const Inst& out, const SolverSettings& set) {
+  if (!cp.cm->rim) return;
+  const RodModel& mi = in.model();
+  const RodModel& mo = out.model();
+  const RodState& si = in.rod();
+  const RodState& so = out.rod();
+  const std::vector<unsigned char>& sheathed = in.w->sheathed;
   int i = mi.n - 2;
-  while (i >= in.drive.first_free && !(in.sheathed[i] && !in.sheathed[i + 1])) --i;
-  if (i < in.drive.first_free) return;
-  const Vec3& tip = out.state.x[mo.n - 1];
-  const Vec3 axis = (tip - out.state.x[mo.n - 2]).normalized();
+  while (i >= in.drive().first_free && !(sheathed[i] && !sheathed[i + 1])) --i;
+  if (i < in.drive().first_free) return;
+  const Vec3& tip = so.x[mo.n - 1];
+  const Vec3 axis = (tip - so.x[mo.n - 2]).normalized();
   const double rim = mo.inner_radius[mo.m - 1];
   // The edges that leave the lumen and wrap round the rim: a wire edge is shorter than the wrap
   // of a 3 mm J tip round the rim, so it takes up to three.
   for (int j = i; j < std::min(i + kRimEdges, mi.n - 1); ++j) {
-    const Vec3& x0 = in.state.x[j];
-    const Vec3& x1 = in.state.x[j + 1];
+    const Vec3& x0 = si.x[j];
+    const Vec3& x1 = si.x[j + 1];
     const Vec3 r1 = (x1 - tip) - (x1 - tip).dot(axis) * axis;
     if (r1.norm() < 1e-12) continue;  // straight out along the axis: far from the rim all round
     const Vec3 u = r1.normalized();
@@ -368,36 +373,39 @@ void add_rim_contact(Coupling& cp, const Instrument& in, const Instrument& out,
     const double sd = in_front ? dist : -dist;
     const Vec3 normal = in_front ? Vec3(-away / dist) : Vec3(away / dist);  // toward the rim
     const double excess = r_w - sd;
-    const Vec3 rel_v = (1 - a) * in.state.v[j] + a * in.state.v[j + 1] - out.state.v[mo.n - 1];
+    const Vec3 rel_v = (1 - a) * si.v[j] + a * si.v[j + 1] - so.v[mo.n - 1];
     if (excess < -(set.contact_margin + rel_v.norm() * set.rod.dt)) continue;
-    cp.contacts.push_back({j, mo.m - 1, 1.0, normal, excess, 0.0, Vec3::Zero(), a});
+    cp.s->contacts.push_back({j, mo.m - 1, 1.0, normal, excess, 0.0, Vec3::Zero(), a});
   }
 }
 
 // Pairs every free inner node inside the outer instrument's inserted length with the closest
 // outer edge and records the radial excess beyond the clearance. Marks those inner nodes
 // sheathed (no wall query).
-void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
-                     const SolverSettings& set) {
-  cp.contacts.clear();
-  std::fill(in.sheathed.begin(), in.sheathed.end(), 0);
-  const RodModel& mo = out.model;
-  cp.clearance = std::max(0.0, mo.inner_radius[mo.m - 1] - in.model.outer_radius[0]);
+void detect_coupling(const Pair& cp, const Inst& in, const Inst& out, const SolverSettings& set) {
+  CouplingScratch& cs = *cp.s;
+  cs.contacts.clear();
+  std::vector<unsigned char>& sheathed = in.w->sheathed;
+  std::fill(sheathed.begin(), sheathed.end(), 0);
+  const RodModel& mo = out.model();
+  const RodState& si = in.rod();
+  const RodState& so = out.rod();
+  cs.clearance = std::max(0.0, mo.inner_radius[mo.m - 1] - in.model().outer_radius[0]);
   const double dt = set.rod.dt;
   for_each_sheathed(in, out, [&](int i, int k, bool past) {
     int best = k;
     double t = 0.0;
-    const Vec3 off = offset_from_outer(out, k, in.state.x[i], best, t);
+    const Vec3 off = offset_from_outer(out, k, si.x[i], best, t);
     if (beyond_tip(mo, best, t)) return;  // outside: the wall's
     const double r = off.norm();
     // Past the inserted length: inside only where it lies in the lumen, next to a node inside.
-    if (past && (!in.sheathed[i - 1] || r > mo.inner_radius[best])) return;
-    in.sheathed[i] = 1;
+    if (past && (!sheathed[i - 1] || r > mo.inner_radius[best])) return;
+    sheathed[i] = 1;
     if (r < 1e-12) return;
-    const Vec3 rel_v = in.state.v[i] - ((1 - t) * out.state.v[best] + t * out.state.v[best + 1]);
-    const double excess = r - cp.clearance;
+    const Vec3 rel_v = si.v[i] - ((1 - t) * so.v[best] + t * so.v[best + 1]);
+    const double excess = r - cs.clearance;
     if (excess < -(set.contact_margin + rel_v.norm() * dt)) return;
-    cp.contacts.push_back({i, best, t, off / r, excess, 0.0, Vec3::Zero()});
+    cs.contacts.push_back({i, best, t, off / r, excess, 0.0, Vec3::Zero()});
   });
   add_rim_contact(cp, in, out, set);
 }
@@ -409,15 +417,17 @@ void detect_coupling(Coupling& cp, Instrument& in, const Instrument& out,
 // pair scene) leaves the node outside by sqrt(c^2 + (v_t dt)^2) - c. The catheter is taken as fixed
 // here, so one pass is exact; the velocities are left alone (the next step's constraint sees a node
 // at the clearance).
-void project_coupling(const Coupling& cp, Instrument& in, const Instrument& out) {
+void project_coupling(const Pair& cp, const Inst& in, const Inst& out) {
+  const double clearance = cp.s->clearance;
+  RodState& si = in.rod();
   for_each_sheathed(in, out, [&](int i, int k, bool) {
-    if (!in.sheathed[i]) return;
+    if (!in.w->sheathed[i]) return;
     int best = k;
     double t = 0.0;
-    const Vec3 off = offset_from_outer(out, k, in.state.x[i], best, t);
-    if (beyond_tip(out.model, best, t)) return;  // left through the tip
+    const Vec3 off = offset_from_outer(out, k, si.x[i], best, t);
+    if (beyond_tip(out.model(), best, t)) return;  // left through the tip
     const double r = off.norm();
-    if (r > cp.clearance) in.state.x[i] -= ((r - cp.clearance) / r) * off;
+    if (r > clearance) si.x[i] -= ((r - clearance) / r) * off;
   });
 }
 
@@ -427,52 +437,60 @@ void project_coupling(const Coupling& cp, Instrument& in, const Instrument& out)
 struct CouplingWeights {
   double w0, w1, wa, wb, k;
 };
-CouplingWeights coupling_weights(const CoaxialContact& c, const Instrument& in,
-                                 const Instrument& out) {
-  const double w0 = in.ws.inv_mass[c.node] * (1 - c.a);
-  const double w1 = c.a > 0.0 ? in.ws.inv_mass[c.node + 1] * c.a : 0.0;
-  const double wa = out.ws.inv_mass[c.segment] * (1 - c.t);
-  const double wb = out.ws.inv_mass[c.segment + 1] * c.t;
+CouplingWeights coupling_weights(const CoaxialContact& c, const Inst& in, const Inst& out) {
+  const std::vector<double>& wi = in.ws().inv_mass;
+  const std::vector<double>& wo = out.ws().inv_mass;
+  const double w0 = wi[c.node] * (1 - c.a);
+  const double w1 = c.a > 0.0 ? wi[c.node + 1] * c.a : 0.0;
+  const double wa = wo[c.segment] * (1 - c.t);
+  const double wb = wo[c.segment + 1] * c.t;
   return {w0, w1, wa, wb, (1 - c.a) * w0 + c.a * w1 + (1 - c.t) * wa + c.t * wb};
 }
 
 // The inner point's velocity, and the outer centreline's where it faces it.
-Vec3 inner_velocity(const CoaxialContact& c, const Instrument& in) {
-  const Vec3& v0 = in.state.v[c.node];
-  return c.a > 0.0 ? Vec3((1 - c.a) * v0 + c.a * in.state.v[c.node + 1]) : v0;
+Vec3 inner_velocity(const CoaxialContact& c, const Inst& in) {
+  const Vec3& v0 = in.rod().v[c.node];
+  return c.a > 0.0 ? Vec3((1 - c.a) * v0 + c.a * in.rod().v[c.node + 1]) : v0;
 }
-Vec3 outer_velocity(const CoaxialContact& c, const Instrument& out) {
-  return (1 - c.t) * out.state.v[c.segment] + c.t * out.state.v[c.segment + 1];
+Vec3 outer_velocity(const CoaxialContact& c, const Inst& out) {
+  return (1 - c.t) * out.rod().v[c.segment] + c.t * out.rod().v[c.segment + 1];
 }
 
-// Adds an impulse at the contact's inner point to Instrument::coupling_impulse, its reaction at
-// the outer point.
-void add_coupling_impulse(const CoaxialContact& c, Instrument& in, Instrument& out,
+// Adds an impulse at the contact's inner point to InstrumentScratch::coupling_impulse, its
+// reaction at the outer point.
+void add_coupling_impulse(const CoaxialContact& c, const Inst& in, const Inst& out,
                           const Vec3& impulse) {
-  in.coupling_impulse[c.node] += (1 - c.a) * impulse;
-  if (c.a > 0.0) in.coupling_impulse[c.node + 1] += c.a * impulse;
-  out.coupling_impulse[c.segment] -= (1 - c.t) * impulse;
-  out.coupling_impulse[c.segment + 1] -= c.t * impulse;
+  std::vector<Vec3>& ii = in.w->coupling_impulse;
+  std::vector<Vec3>& io = out.w->coupling_impulse;
+  ii[c.node] += (1 - c.a) * impulse;
+  if (c.a > 0.0) ii[c.node + 1] += c.a * impulse;
+  io[c.segment] -= (1 - c.t) * impulse;
+  io[c.segment + 1] -= c.t * impulse;
 }
 
 // One projected Gauss-Seidel sweep over the concentric constraints: the inner node may not move
 // further than the clearance from the outer centreline; lumen friction on the relative sliding.
-void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverSettings& set) {
+void solve_coupling(const Pair& cp, const Inst& in, const Inst& out, const SolverSettings& set) {
   const double dt = set.rod.dt;
-  for (CoaxialContact& c : cp.contacts) {
+  const double mu = cp.cm->mu;
+  std::vector<Vec3>& vi = in.rod().v;
+  std::vector<Vec3>& vo = out.rod().v;
+  std::vector<Vec3>& ni = in.ws().node_impulse;
+  std::vector<Vec3>& no = out.ws().node_impulse;
+  for (CoaxialContact& c : cp.s->contacts) {
     const auto [w0, w1, wa, wb, k] = coupling_weights(c, in, out);
     if (k == 0.0) continue;
     auto apply = [&](const Vec3& impulse) {  // impulse on the inner point, reaction on the outer
-      in.state.v[c.node] += w0 * impulse;
-      in.ws.node_impulse[c.node] += (1 - c.a) * impulse;
+      vi[c.node] += w0 * impulse;
+      ni[c.node] += (1 - c.a) * impulse;
       if (c.a > 0.0) {
-        in.state.v[c.node + 1] += w1 * impulse;
-        in.ws.node_impulse[c.node + 1] += c.a * impulse;
+        vi[c.node + 1] += w1 * impulse;
+        ni[c.node + 1] += c.a * impulse;
       }
-      out.state.v[c.segment] -= wa * impulse;
-      out.state.v[c.segment + 1] -= wb * impulse;
-      out.ws.node_impulse[c.segment] -= (1 - c.t) * impulse;
-      out.ws.node_impulse[c.segment + 1] -= c.t * impulse;
+      vo[c.segment] -= wa * impulse;
+      vo[c.segment + 1] -= wb * impulse;
+      no[c.segment] -= (1 - c.t) * impulse;
+      no[c.segment + 1] -= c.t * impulse;
       add_coupling_impulse(c, in, out, impulse);
     };
     // Radial: v_rel . n <= -excess / dt: a violation is removed in full (a wire outside its
@@ -482,12 +500,12 @@ void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverS
     const double ln = std::max(0.0, c.lambda_n + (rel.dot(c.normal) - target) / k);
     apply(-(ln - c.lambda_n) * c.normal);
     c.lambda_n = ln;
-    if (cp.mu <= 0.0) continue;
+    if (mu <= 0.0) continue;
     const Vec3 rel2 = inner_velocity(c, in) - outer_velocity(c, out);
     const Vec3 slip = rel2 - rel2.dot(c.normal) * c.normal;
     Vec3 lt = c.lambda_t + slip / k;
     const double lt_norm = lt.norm();
-    if (lt_norm > cp.mu * ln) lt *= cp.mu * ln / lt_norm;
+    if (lt_norm > mu * ln) lt *= mu * ln / lt_norm;
     apply(-(lt - c.lambda_t));
     c.lambda_t = lt;
   }
@@ -496,9 +514,9 @@ void solve_coupling(Coupling& cp, Instrument& in, Instrument& out, const SolverS
 // The part of each concentric impulse that removed a violation (the radial excess the step
 // began with, taken out in full) is a position fix-up, not a load, like a wall contact's
 // lambda_bias: it is taken out of the impulses the hands feel, with the lumen friction it allowed
-// in proportion. The dynamics keep it (only Instrument::coupling_impulse changes).
-void remove_coupling_bias(const Coupling& cp, Instrument& in, Instrument& out, double dt) {
-  for (const CoaxialContact& c : cp.contacts) {
+// in proportion. The dynamics keep it (only InstrumentScratch::coupling_impulse changes).
+void remove_coupling_bias(const Pair& cp, const Inst& in, const Inst& out, double dt) {
+  for (const CoaxialContact& c : cp.s->contacts) {
     if (c.excess <= 0.0 || c.lambda_n <= 0.0) continue;
     const double k = coupling_weights(c, in, out).k;
     if (k == 0.0) continue;
@@ -508,144 +526,43 @@ void remove_coupling_bias(const Coupling& cp, Instrument& in, Instrument& out, d
   }
 }
 
-void size_scratch(Instrument& inst) {
-  const int n = inst.model.n;
-  inst.hits.assign(n, SphereContact{});
-  inst.query_centre.assign(n, Vec3::Zero());
-  inst.clearance.assign(n, 0.0);
-  inst.contacts.clear();
-  inst.contacts.reserve(n);
-  inst.query_nodes.assign(n, 0);
-  inst.query_points.assign(n, Vec3::Zero());
-  inst.query_radii.assign(n, 0.0);
-  inst.leaf_cache.assign(n, LeafCache{});
-  inst.query_caches.assign(n, nullptr);
-  inst.sheathed.assign(n, 0);
-  inst.coupling_impulse.assign(n, Vec3::Zero());
-  inst.felt_load.assign(n, Vec3::Zero());
-  inst.wall_contact_of.assign(n, -1);
-  inst.coupling_of.assign(n, -1);
-  inst.rim_of.assign(n, -1);
-  inst.ws.resize(inst.model);
+// Runs f(k) for every instrument k that is not parked: on the TBB threads when `parallel`, else
+// in order. Each call must touch only its own instrument, so the results are the same either way.
+template <class F>
+void for_each_active(std::span<Inst> insts, bool parallel, F&& f) {
+  if (parallel) {
+    tbb::parallel_for(std::size_t{0}, insts.size(), [&](std::size_t k) {
+      if (!insts[k].parked()) f(k);
+    });
+  } else {
+    for (std::size_t k = 0; k < insts.size(); ++k)
+      if (!insts[k].parked()) f(k);
+  }
 }
 
 }  // namespace
 
-Vec3 VesselWall::velocity(const SphereContact& /*hit*/) const {
-  return Vec3::Zero();
+void InstrumentScratch::resize(const RodModel& md) {
+  const int n = md.n;
+  rod.resize(md);
+  hits.assign(n, SphereContact{});
+  query_nodes.assign(n, 0);
+  query_points.assign(n, Vec3::Zero());
+  query_radii.assign(n, 0.0);
+  query_caches.assign(n, nullptr);
+  leaf_cache.assign(n, LeafCache{});
+  contacts.clear();
+  contacts.reserve(n);
+  sheathed.assign(n, 0);
+  coupling_impulse.assign(n, Vec3::Zero());
+  felt_load.assign(n, Vec3::Zero());
+  wall_contact_of.assign(n, -1);
+  coupling_of.assign(n, -1);
+  rim_of.assign(n, -1);
 }
 
-void StaticWall::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
-                               std::span<SphereContact> out) {
-  tree_->query_spheres(*mesh_, centres, radii, out);
-}
-
-void StaticWall::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
-                               std::span<LeafCache* const> caches, double slack,
-                               std::span<SphereContact> out) {
-  auto run = [&](std::size_t b, std::size_t e) {
-    for (std::size_t i = b; i < e; ++i)
-      out[i] = tree_->query_sphere(*mesh_, centres[i], radii[i], slack, *caches[i]);
-  };
-  const auto n = static_cast<int>(centres.size());
-  const int chunks = std::min(tbb::this_task_arena::max_concurrency(), n / kParallelChunk);
-  if (parallel_min_ <= 0 || n < parallel_min_ || chunks < 2) {
-    run(0, centres.size());
-    return;
-  }
-  // One chunk per thread: about 0.6 us per query, so finer chunks would cost more to hand out.
-  const auto grain = static_cast<std::size_t>((n + chunks - 1) / chunks);
-  tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, centres.size(), grain),
-      [&](const tbb::blocked_range<std::size_t>& r) { run(r.begin(), r.end()); },
-      tbb::static_partitioner());
-}
-
-void ContactMaterial::validate(const std::string& source) const {
-  require_nonnegative(mu_static, source, "mu_static");
-  require_nonnegative(mu_dynamic, source, "mu_dynamic");
-  if (mu_dynamic > mu_static) {
-    throw InputError(source, "mu_dynamic", "expected at most mu_static");
-  }
-}
-
-void SolverSettings::validate(const std::string& source) const {
-  rod.validate(source);
-  require_nonnegative(contact_margin, source, "contact_margin");
-  require_in_range(penetration_correction, 0.0, 1.0, source, "penetration_correction");
-  require_nonnegative(coherence_margin, source, "coherence_margin");
-  require_nonnegative(leaf_cache_slack, source, "leaf_cache_slack");
-  require_nonnegative(feedback_cutoff_hz, source, "feedback_cutoff_hz");
-  if (rod.integrator == Integrator::kLinearlyImplicit && collisions) {
-    // physics.md 5.5: with the physical mass the projected Gauss-Seidel loop of distance chain,
-    // contacts and friction does not converge in a usable number of iterations.
-    throw InputError(source, "rod.integrator",
-                     "expected symplectic-euler where instruments collide: the linearly implicit "
-                     "step runs at the physical mass, which the contact solve cannot take yet");
-  }
-}
-
-Instrument make_instrument(const RodDef& def_in, const Sheath& sheath,
-                           const ContactMaterial& contact, double depth, double roll) {
-  RodDef def = def_in;
-  if (def.base != BoundaryKind::kFree || def.tip != BoundaryKind::kFree) {
-    throw InputError("instrument", "boundary", "expected free ends (the drive holds the rod)");
-  }
-  contact.validate("instrument");
-  require_nonnegative(depth, "instrument", "depth");
-  require_finite(roll, "instrument", "roll");
-  for (int k = 0; k < 3; ++k) require_finite(sheath.access_point[k], "sheath", "access_point");
-  require_positive(sheath.max_speed, "sheath", "max_speed");
-  require_positive(sheath.max_spin, "sheath", "max_spin");
-  // Lay the rod on the sheath axis with `depth` beyond the access point.
-  const Quat frame = sheath.frame.normalized();
-  const Vec3 axis = frame * Vec3::UnitZ();
-  def.base_orientation = (Quat(Eigen::AngleAxisd(roll, axis)) * frame).normalized();
-  def.base_position = sheath.access_point - (def.length - depth) * axis;
-  def.start_in_rest_shape = false;
-  Instrument inst;
-  inst.model = build_rod(def);
-  inst.sheath = sheath;
-  inst.contact = contact;
-  if (depth > def.length - inst.model.rest_length[0]) {
-    throw InputError("instrument", "depth", "expected at most the length less one segment");
-  }
-  inst.sheath.frame = frame;
-  inst.state = make_state(inst.model, def);
-  inst.drive.depth = depth;
-  inst.drive.roll = roll;
-  size_scratch(inst);
-  return inst;
-}
-
-Instrument make_free_instrument(const RodDef& def, const ContactMaterial& contact) {
-  contact.validate("instrument");
-  Instrument inst;
-  inst.model = build_rod(def);
-  inst.contact = contact;
-  inst.driven = false;
-  inst.state = make_state(inst.model, def);
-  size_scratch(inst);
-  return inst;
-}
-
-// Runs f(k) for every instrument k that is not parked: on the TBB threads when `parallel`, else
-// in order. Each call must touch only its own instrument, so the results are the same either way.
-template <class F>
-void for_each_active(std::span<Instrument> insts, bool parallel, F&& f) {
-  if (parallel) {
-    tbb::parallel_for(std::size_t{0}, insts.size(), [&](std::size_t k) {
-      if (!insts[k].parked) f(k);
-    });
-  } else {
-    for (std::size_t k = 0; k < insts.size(); ++k)
-      if (!insts[k].parked) f(k);
-  }
-}
-
-void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings, VesselWall* wall,
-                      const SolverSettings& set, std::span<const DriveCommand> cmds,
-                      StepProfile* prof) {
+void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWall* wall,
+               const SolverSettings& set, std::span<const DriveCommand> cmds, StepProfile* prof) {
   const RodSettings& rs = set.rod;
   const bool collide = set.collisions && wall != nullptr;
   StepProfile p;
@@ -654,50 +571,52 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   // Several instruments of 256 nodes or more: a region's work per instrument is worth a thread
   // (side by side, 2 x 256 nodes gain nothing yet, 2 x 512 run 25 % faster).
   int large = 0;
-  for (const Instrument& in : insts) large += !in.parked && in.model.n >= 256 ? 1 : 0;
+  for (const Inst& in : insts) large += !in.parked() && in.model().n >= 256 ? 1 : 0;
   const bool parallel = set.parallel_instruments && large >= 2;
-  // Stage times of a region: each instrument records its own (Instrument::stage_us); a parallel
-  // region takes as long as its longest instrument, a serial one as their sum.
+  // Stage times of a region: each instrument records its own (InstrumentScratch::stage_us); a
+  // parallel region takes as long as its longest instrument, a serial one as their sum.
   auto region = [&](int stage) {
     double r = 0.0;
-    for (const Instrument& in : insts) {
-      if (in.parked) continue;
-      r = parallel ? std::max(r, in.stage_us[stage]) : r + in.stage_us[stage];
+    for (const Inst& in : insts) {
+      if (in.parked()) continue;
+      r = parallel ? std::max(r, in.w->stage_us[stage]) : r + in.w->stage_us[stage];
     }
     return r;
   };
 
   // 1. inputs: the drive holds the outside part; 2. forces, 3. velocities
   for_each_active(insts, parallel, [&](std::size_t k) {
-    Instrument& in = insts[k];
+    const Inst& in = insts[k];
     const double a = tick();
-    rod_begin_step(in.model, in.ws);
-    std::fill(in.coupling_impulse.begin(), in.coupling_impulse.end(), Vec3::Zero());
-    if (in.driven) drive_begin(in, cmds[k], rs.dt);
+    rod_begin_step(in.model(), in.ws());
+    std::fill(in.w->coupling_impulse.begin(), in.w->coupling_impulse.end(), Vec3::Zero());
+    if (in.driven()) drive_begin(in, cmds[k], rs.dt);
     const double b = tick();
-    rod_forces(in.model, rs, in.state, in.ws);
+    rod_forces(in.model(), rs, in.rod(), in.ws());
     const double c = tick();
-    rod_integrate_velocities(in.model, rs, in.state, in.ws);
-    in.stage_us = {b - a, c - b, tick() - c};
+    rod_integrate_velocities(in.model(), rs, in.rod(), in.ws());
+    in.w->stage_us = {b - a, c - b, tick() - c};
   });
   p.drive = region(0);
   p.forces = region(1);
   p.integrate_velocities = region(2);
   const double t3 = tick();
   // 4. collision detection: coupling first (sheathed wire nodes skip the wall)
-  for (Coupling& c : couplings) {
-    if (insts[c.inner].parked || insts[c.outer].parked) {
-      c.contacts.clear();
+  for (const Pair& c : couplings) {
+    const Inst& in = insts[c.cm->inner];
+    const Inst& out = insts[c.cm->outer];
+    if (in.parked() || out.parked()) {
+      c.s->contacts.clear();
       continue;
     }
-    detect_coupling(c, insts[c.inner], insts[c.outer], set);
+    detect_coupling(c, in, out, set);
   }
-  for (Instrument& in : insts) {
-    if (in.parked) continue;
+  for (const Inst& in : insts) {
+    if (in.parked()) continue;
     if (collide) {
       detect_contacts(in, *wall, set, &p);
     } else {
-      in.contacts.clear();
+      in.w->contacts.clear();
     }
     add_sheath_contacts(in, set);
   }
@@ -708,40 +627,42 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
   double t_dist = 0.0, t_cont = 0.0;
   for (int it = 0; it < rs.iterations; ++it) {
     for_each_active(insts, parallel, [&](std::size_t k) {
-      Instrument& in = insts[k];
+      const Inst& in = insts[k];
       const double a = tick();
       if (rs.distance != DistanceMethod::kPenalty)
-        rod_distance_iteration(in.model, rs, in.state, in.ws);
+        rod_distance_iteration(in.model(), rs, in.rod(), in.ws());
       const double b = tick();
       solve_contacts(in, set);
-      in.stage_us = {b - a, tick() - b, 0.0};
+      in.w->stage_us = {b - a, tick() - b, 0.0};
     });
     const double b = tick();
-    for (Coupling& c : couplings)
-      if (!c.contacts.empty()) solve_coupling(c, insts[c.inner], insts[c.outer], set);
+    for (const Pair& c : couplings)
+      if (!c.s->contacts.empty()) solve_coupling(c, insts[c.cm->inner], insts[c.cm->outer], set);
     t_dist += region(0);
     t_cont += region(1) + (tick() - b);
   }
   const double t5 = tick();
   // 6. positions, then the coupled wires exactly into their catheters' lumens
   for_each_active(insts, parallel, [&](std::size_t k) {
-    rod_integrate_positions(insts[k].model, rs, insts[k].state, insts[k].ws);
+    rod_integrate_positions(insts[k].model(), rs, insts[k].rod(), insts[k].ws());
     remove_contact_bias(insts[k], set);
   });
-  for (Coupling& c : couplings) {
-    if (!insts[c.inner].parked && !insts[c.outer].parked) {
-      project_coupling(c, insts[c.inner], insts[c.outer]);
-      remove_coupling_bias(c, insts[c.inner], insts[c.outer], rs.dt);
+  for (const Pair& c : couplings) {
+    const Inst& in = insts[c.cm->inner];
+    const Inst& out = insts[c.cm->outer];
+    if (!in.parked() && !out.parked()) {
+      project_coupling(c, in, out);
+      remove_coupling_bias(c, in, out, rs.dt);
     }
   }
-  for (Instrument& in : insts) {
-    if (in.parked) continue;
-    if (in.driven) drive_end(in);
+  for (const Inst& in : insts) {
+    if (in.parked()) continue;
+    if (in.driven()) drive_end(in);
   }
   // 7. what the hands feel, inner instruments first; then the rods' own end of step
-  internal::hand_feedback(insts, couplings, set);
-  for (Instrument& in : insts)
-    if (!in.parked) rod_end_step(in.model, rs, in.state, in.ws);
+  hand_feedback(insts, couplings, set);
+  for (const Inst& in : insts)
+    if (!in.parked()) rod_end_step(in.model(), rs, in.rod(), in.ws());
   if (prof) {
     const double t6 = tick();
     p.collision = t4 - t3;
@@ -751,19 +672,9 @@ void step_instruments(std::span<Instrument> insts, std::span<Coupling> couplings
     p.integrate_positions = t6 - t5;
     p.total = t6 - t0;
     p.num_contacts = 0;
-    for (const Instrument& in : insts) p.num_contacts += static_cast<int>(in.contacts.size());
+    for (const Inst& in : insts) p.num_contacts += static_cast<int>(in.w->contacts.size());
     *prof = p;
   }
 }
 
-void instrument_step(Instrument& inst, VesselWall* wall, const SolverSettings& set,
-                     const DriveCommand& cmd, StepProfile* prof) {
-  step_instruments(std::span<Instrument>(&inst, 1), {}, wall, set,
-                   std::span<const DriveCommand>(&cmd, 1), prof);
-}
-
-double compression(const Instrument& inst) {
-  return (inst.model.length - centreline_length(inst.state)) / inst.model.length;
-}
-
-}  // namespace vcsim
+}  // namespace vcsim::internal

@@ -73,7 +73,7 @@ CompressionScene make_compression_scene(const CompressionOptions& o, DistanceMet
   sheath.access_point = Vec3::Zero();
   sheath.frame = Quat::Identity();
 
-  SolverSettings& s = sc.settings;
+  SolverSettings s;
   s.rod.distance = method;
   s.rod.iterations = iterations;
   s.rod.gravity = Vec3::Zero();
@@ -81,10 +81,10 @@ CompressionScene make_compression_scene(const CompressionOptions& o, DistanceMet
   // microsecond; to run at dt the density (hence every inertia) is scaled by (dt_stable/dt)^-2.
   {
     ContactMaterial probe_contact;
-    Instrument probe = make_instrument(def, sheath, probe_contact, o.start_depth);
+    const InstrumentModel probe = make_instrument_model(def, sheath, probe_contact);
     RodSettings inext = s.rod;
     inext.distance = DistanceMethod::kGlobal;
-    const double dt_phys = estimate_stable_dt(probe.model, inext);
+    const double dt_phys = estimate_stable_dt(probe.rod(), inext);
     sc.mass_scale = o.dt > 0 ? std::max(1.0, std::pow(o.dt / dt_phys, 2)) : 1.0;
     def.density = o.density * sc.mass_scale;
     s.rod.dt = o.dt > 0 ? o.dt : dt_phys;
@@ -92,23 +92,27 @@ CompressionScene make_compression_scene(const CompressionOptions& o, DistanceMet
   ContactMaterial contact;
   contact.mu_static = o.mu;
   contact.mu_dynamic = o.mu;
-  sc.inst = make_instrument(def, sheath, contact, o.start_depth);
+  sc.model.instruments = {make_instrument_model(def, sheath, contact)};
+  const RodModel& rod = sc.model.instruments[0].rod();
   // Damping of free motion; the contacts and friction do the rest.
   s.rod.drag = 20.0;  // 1/s, mass-proportional: settles the heavy (quasi-static) rod
   if (method == DistanceMethod::kPenalty) {
     // As in the paper: the largest stretching modulus that is stable at this step.
     double lo = 1e-9, hi = 1.0;
     s.rod.penalty_modulus_scale = hi;
-    if (estimate_stable_dt(sc.inst.model, s.rod) < s.rod.dt) {
+    if (estimate_stable_dt(rod, s.rod) < s.rod.dt) {
       for (int k = 0; k < 60; ++k) {
         const double mid = std::sqrt(lo * hi);
         s.rod.penalty_modulus_scale = mid;
-        (estimate_stable_dt(sc.inst.model, s.rod) >= s.rod.dt ? lo : hi) = mid;
+        (estimate_stable_dt(rod, s.rod) >= s.rod.dt ? lo : hi) = mid;
       }
       s.rod.penalty_modulus_scale = lo;
     }
   }
-  s.validate("bench compression");
+  sc.model.settings = {s};
+  sc.model.validate("bench compression");
+  sc.state =
+      make_solver_state(sc.model, {make_instrument_state(sc.model.instruments[0], o.start_depth)});
   return sc;
 }
 
@@ -124,9 +128,11 @@ double compression_depth(const CompressionOptions& o, long long k, double dt) {
 
 CompressionRow run_compression(const CompressionOptions& o, DistanceMethod method, int iterations) {
   CompressionScene sc = make_compression_scene(o, method, iterations);
-  Instrument& inst = sc.inst;
+  const RodModel& md = sc.model.instruments[0].rod();
+  const InstrumentState& inst = sc.state.instruments[0];
+  SolverWorkspace ws(sc.model);
   StaticWall wall = sc.wall();
-  const double dt = sc.settings.rod.dt;
+  const double dt = sc.model.dt();
   const auto centreline = bent_centreline(o.straight1, o.bend_radius,
                                           o.bend_angle_deg * std::numbers::pi / 180.0, o.straight2);
   DriveCommand cmd;
@@ -139,11 +145,13 @@ CompressionRow run_compression(const CompressionOptions& o, DistanceMethod metho
   row.iterations = iterations;
   row.dt = dt;
   row.mass_scale = sc.mass_scale;
-  row.penalty_modulus_scale = sc.settings.rod.penalty_modulus_scale;
+  row.penalty_modulus_scale = sc.model.settings[0].rod.penalty_modulus_scale;
   StepProfile prof;
   for (long long k = 0; k < steps; ++k) {
     cmd.translation = compression_depth(o, k + 1, dt);
-    instrument_step(inst, &wall, sc.settings, cmd, &prof);
+    const StepInfo info =
+        solver_step(sc.model, sc.state, ws, &wall, std::span<const DriveCommand>(&cmd, 1), &prof);
+    if (info.rolled_back) throw std::runtime_error("compression: diverged (a non-finite step)");
     total.push_back(prof.total);
     cons.push_back(prof.constraints);
     forces.push_back(prof.forces);
@@ -151,10 +159,10 @@ CompressionRow run_compression(const CompressionOptions& o, DistanceMethod metho
     coll.push_back(prof.collision);
     dist.push_back(prof.distance);
     cont.push_back(prof.contacts);
-    row.max_compression_percent = std::max(row.max_compression_percent, 100.0 * compression(inst));
-    if (!inst.state.x.back().allFinite()) throw std::runtime_error("compression: diverged");
+    row.max_compression_percent =
+        std::max(row.max_compression_percent, 100.0 * compression(md, inst.rod));
   }
-  row.compression_percent = 100.0 * compression(inst);
+  row.compression_percent = 100.0 * compression(md, inst.rod);
   row.step_us = median(total);
   row.constraints_us = median(cons);
   row.forces_us = median(forces);
@@ -164,10 +172,10 @@ CompressionRow run_compression(const CompressionOptions& o, DistanceMethod metho
   row.contacts_us = median(cont);
   row.axial_force = inst.drive.axial_force;
   row.contacts = prof.num_contacts;
-  for (int i = inst.drive.first_free; i < inst.model.n; ++i) {
-    const double r = inst.model.outer_radius[std::min(i, inst.model.m - 1)];
+  for (int i = inst.drive.first_free; i < md.n; ++i) {
+    const double r = md.outer_radius[std::min(i, md.m - 1)];
     row.max_outside =
-        std::max(row.max_outside, outside_tube(centreline, o.lumen_radius, inst.state.x[i]) / r);
+        std::max(row.max_outside, outside_tube(centreline, o.lumen_radius, inst.rod.x[i]) / r);
   }
   return row;
 }

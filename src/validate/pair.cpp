@@ -36,32 +36,35 @@ PairScene make_pair_scene(const PairOptions& o) {
   check_and_repair(sc.mesh, "pair tube");
   sc.tree.build(sc.mesh, AabbTreeSettings::for_static_mesh());
 
-  SolverSettings& s = sc.settings;
+  SolverSettings s;
   s.rod.dt = o.dt;
-  set_quasi_static_damping(s.rod);
   s.rod.gravity = o.gravity ? Vec3(0, -9.81, 0) : Vec3::Zero();
   s.collisions = o.collisions;
+  sc.model.settings = {s};
   Discretisation disc;
   disc.max_nodes = o.nodes;
+  std::vector<InstrumentState> states;
   for (const auto* spec : {&wire, &cath}) {
     RodDef def = to_rod_def(*spec, disc);
     def.base = BoundaryKind::kFree;  // the sheath drive holds the proximal part
     def.tip = BoundaryKind::kFree;
     ContactMaterial mat{spec->friction.vessel_static, spec->friction.vessel_dynamic};
-    const double depth = spec == &wire ? o.wire_depth : o.catheter_depth;
-    sc.instruments.push_back(make_instrument(def, Sheath{}, mat, depth));
-    // Quasi-static, as in the simulator: each node and frame only as heavy as the explicit step
-    // needs (physics.md 5.4). Scaling the whole rod's density for its finest segment instead
-    // made the shaft hundreds of times too heavy, and the shaft snaked and the tip folded.
-    scale_for_time_step(sc.instruments.back().model, o.dt, kQuasiStaticKpRatio);
+    sc.model.instruments.push_back(make_instrument_model(def, Sheath{}, mat));
   }
-  Coupling c;
+  // Quasi-static, as in the simulator: each node and frame only as heavy as the explicit step
+  // needs (physics.md 5.4), with its damping. Scaling the whole rod's density for its finest
+  // segment instead made the shaft hundreds of times too heavy, and the shaft snaked and the tip
+  // folded.
+  make_quasi_static(sc.model, 1);
+  CouplingModel c;
   c.inner = 0;
   c.outer = 1;
   c.mu = cath.friction.lumen;
-  c.contacts.reserve(sc.instruments[0].model.n);
-  sc.couplings.push_back(std::move(c));
-  s.validate("pair");
+  sc.model.couplings.push_back(c);
+  sc.model.validate("pair");
+  sc.state = make_solver_state(sc.model,
+                               {make_instrument_state(sc.model.instruments[0], o.wire_depth),
+                                make_instrument_state(sc.model.instruments[1], o.catheter_depth)});
   return sc;
 }
 

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "anatomy_test_util.h"
+#include "solver_rig.h"
 #include "vcsim/beating_wall.h"
 
 using namespace vcsim;
@@ -38,7 +39,7 @@ double distance_to_polyline(const std::vector<Vec3>& pts, const Vec3& p) {
 // A 0.014" coronary wire, 30 mm, laid on the LAD centreline from 20 mm to 50 mm past its origin
 // (nodes on the centreline, frames along the edges), free (no sheath), no gravity. Its density is
 // scaled so that the explicit step is 1 ms (quasi-static, docs/physics.md 5.3).
-Instrument wire_in_lad(const VesselSegment& lad, double s0) {
+test::Rig wire_in_lad(const VesselSegment& lad, double s0) {
   RodDef d;
   d.length = 30 * mm;
   d.segments = 30;
@@ -49,11 +50,11 @@ Instrument wire_in_lad(const VesselSegment& lad, double s0) {
   d.tip = BoundaryKind::kFree;
   const double dt0 = estimate_stable_dt(build_rod(d), RodSettings{});
   d.density *= std::max(1.0, std::pow(1e-3 / dt0, 2));
-  Instrument inst = make_free_instrument(d, ContactMaterial{0.1, 0.08});
-  for (int i = 0; i < inst.model.n; ++i) inst.state.x[i] = point_at(lad, s0 + inst.model.node_s[i]);
-  for (int e = 0; e < inst.model.m; ++e) {
-    const Vec3 t = (inst.state.x[e + 1] - inst.state.x[e]).normalized();
-    inst.state.q[e] = Quat::FromTwoVectors(Vec3::UnitZ(), t);
+  test::Rig inst = test::free_rod_rig(d, ContactMaterial{0.1, 0.08});
+  for (int i = 0; i < inst.md().n; ++i) inst.rod().x[i] = point_at(lad, s0 + inst.md().node_s[i]);
+  for (int e = 0; e < inst.md().m; ++e) {
+    const Vec3 t = (inst.rod().x[e + 1] - inst.rod().x[e]).normalized();
+    inst.rod().q[e] = Quat::FromTwoVectors(Vec3::UnitZ(), t);
   }
   return inst;
 }
@@ -64,14 +65,15 @@ struct Ride {
   double worst_outside = -1e300;  // max over nodes of (distance to moved centreline - radius)
 };
 
-// Runs the wire from end-diastole (t = 0) to end-systole with the wall given, at 1 ms.
-Ride ride_to_end_systole(VesselWall& wall, BeatingWall* beating) {
+// Runs the wire from end-diastole (t = 0) to end-systole with the wall given, at 1 ms (the solver
+// sets the wall's time at each step).
+Ride ride_to_end_systole(VesselWall& wall) {
   const VesselTree& tree = patient();
   const VesselSegment& lad = tree.segments[tree.find("lad")];
   const CardiacMotion motion(tree, MotionSettings{});
   const double s0 = 20 * mm;
-  Instrument inst = wire_in_lad(lad, s0);
-  const std::vector<Vec3> start = inst.state.x;
+  test::Rig inst = wire_in_lad(lad, s0);
+  const std::vector<Vec3> start = inst.rod().x;
   SolverSettings set;
   set.rod.dt = 1e-3;
   set.rod.drag = 5.0;
@@ -79,19 +81,19 @@ Ride ride_to_end_systole(VesselWall& wall, BeatingWall* beating) {
   const double t_es = 0.30 * motion.period();  // end-systole (phase 0.30)
   const int steps = static_cast<int>(std::lround(t_es / set.rod.dt));
   for (int k = 0; k < steps; ++k) {
-    if (beating) beating->set_time(k * set.rod.dt);
-    instrument_step(inst, &wall, set, DriveCommand{});
-    for (const Vec3& x : inst.state.x) EXPECT_TRUE(x.allFinite());
+    inst.step(&wall, set, DriveCommand{});
+    for (const Vec3& x : inst.rod().x) EXPECT_TRUE(x.allFinite());
   }
   const double t = steps * set.rod.dt;
   const VesselSegment moved = motion.moved_tree(tree, t).segments[tree.find("lad")];
   Ride r;
-  for (int i = 0; i < inst.model.n; ++i) {
-    r.mean_wire += (inst.state.x[i] - start[i]).norm() / inst.model.n;
-    r.mean_vessel += motion.displacement(start[i], t).norm() / inst.model.n;
-    const double s = s0 + inst.model.node_s[i];
+  const int n = inst.md().n;
+  for (int i = 0; i < n; ++i) {
+    r.mean_wire += (inst.rod().x[i] - start[i]).norm() / n;
+    r.mean_vessel += motion.displacement(start[i], t).norm() / n;
+    const double s = s0 + inst.md().node_s[i];
     r.worst_outside = std::max(
-        r.worst_outside, distance_to_polyline(moved.points, inst.state.x[i]) - radius_at(moved, s));
+        r.worst_outside, distance_to_polyline(moved.points, inst.rod().x[i]) - radius_at(moved, s));
   }
   return r;
 }
@@ -168,7 +170,7 @@ TEST(BeatingWall, AWireInTheBeatingLadMovesWithIt) {
   const CardiacMotion mo(tree, MotionSettings{});
   BeatingLumen bl(lu.mesh, mo);
   BeatingWall beating(bl);
-  const Ride ride = ride_to_end_systole(beating, &beating);
+  const Ride ride = ride_to_end_systole(beating);
   std::printf("beating: wire %.3f vessel %.3f outside %.3f mm\n", ride.mean_wire / mm,
               ride.mean_vessel / mm, ride.worst_outside / mm);
   EXPECT_GT(ride.mean_vessel, 2 * mm) << "the LAD must move more than its radius for this test";
@@ -180,7 +182,7 @@ TEST(BeatingWall, AWireInTheBeatingLadMovesWithIt) {
   AabbTree rest_tree;
   rest_tree.build(lu.mesh);
   StaticWall still(lu.mesh, rest_tree);
-  const Ride stays = ride_to_end_systole(still, nullptr);
+  const Ride stays = ride_to_end_systole(still);
   std::printf("static: wire %.3f vessel %.3f outside %.3f mm\n", stays.mean_wire / mm,
               stays.mean_vessel / mm, stays.worst_outside / mm);
   EXPECT_LT(stays.mean_wire, 0.2 * stays.mean_vessel);

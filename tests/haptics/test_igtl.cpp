@@ -19,6 +19,7 @@
 #include <functional>
 #include <limits>
 #include <mutex>
+#include <numbers>
 #include <thread>
 
 #include "vcsim/core.h"
@@ -28,10 +29,18 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 using namespace std::chrono_literals;
-using vcsim::DeviceCommands;
 using vcsim::IgtlServer;
 using vcsim::IgtlServerOptions;
-using Mode = vcsim::InstrumentCommand::Mode;
+using vcsim::StepCommands;
+using Mode = vcsim::DriveCommand::Mode;
+// The default options' instruments, in their order: poll() gives commands by this index, in SI.
+enum { kGuidewire, kCatheter };
+double mm(double v) {
+  return v * 1e-3;
+}
+double deg(double v) {
+  return v * (std::numbers::pi / 180.0);
+}
 
 // The library's client sends without MSG_NOSIGNAL: writing to a socket the server dropped must
 // fail, not kill the test.
@@ -69,8 +78,8 @@ IgtlServerOptions quiet_options(LogCapture* log = nullptr) {
 
 using Client = vcsim::test::IgtlClient;
 
-DeviceCommands poll(IgtlServer& s) {
-  DeviceCommands c;
+StepCommands poll(IgtlServer& s) {
+  StepCommands c;
   s.poll(0.0, c);
   return c;
 }
@@ -87,23 +96,22 @@ TEST(Igtl, ClientDrivesInstrumentsAndReceivesForces) {
   ASSERT_TRUE(c.send_sensor("syringe", {2.0}));
   ASSERT_TRUE(c.send_sensor("buttons", {5.0}));
   ASSERT_TRUE(wait_until([&] { return server.stats().messages_accepted >= 5; }));
-  const DeviceCommands cmd = poll(server);
-  const auto* gw = cmd.find("guidewire");
-  const auto* cath = cmd.find("catheter");
-  ASSERT_TRUE(gw && cath);
-  EXPECT_EQ(gw->mode, Mode::kPosition);
-  EXPECT_DOUBLE_EQ(gw->translation_mm, 12.5);
-  EXPECT_DOUBLE_EQ(gw->rotation_deg, 30.0);
-  EXPECT_EQ(cath->mode, Mode::kVelocity);
-  EXPECT_DOUBLE_EQ(cath->translation_mm, 5.0);
-  EXPECT_DOUBLE_EQ(cath->rotation_deg, -10.0);
-  EXPECT_DOUBLE_EQ(cmd.balloon_pressure_atm, 8.0);
-  EXPECT_DOUBLE_EQ(cmd.syringe_flow_ml_s, 2.0);
+  const StepCommands cmd = poll(server);
+  ASSERT_EQ(cmd.drive.size(), 2u);
+  const auto& gw = cmd.drive[kGuidewire];
+  const auto& cath = cmd.drive[kCatheter];
+  EXPECT_EQ(gw.mode, Mode::kPosition);
+  EXPECT_DOUBLE_EQ(gw.translation, mm(12.5));
+  EXPECT_DOUBLE_EQ(gw.rotation, deg(30.0));
+  EXPECT_EQ(cath.mode, Mode::kVelocity);
+  EXPECT_DOUBLE_EQ(cath.translation, mm(5.0));
+  EXPECT_DOUBLE_EQ(cath.rotation, deg(-10.0));
+  EXPECT_DOUBLE_EQ(cmd.balloon_pressure, 8.0 * 101325.0);  // Pa
+  EXPECT_DOUBLE_EQ(cmd.syringe_flow, 2.0e-6);              // m^3/s
   EXPECT_EQ(cmd.buttons, 5u);
 
   // Force feedback: the published value arrives, at 100 Hz or more.
-  const std::vector<vcsim::ForceFeedback> fb = {{"guidewire", 0.25, 0.002},
-                                                {"catheter", -1.5, 0.0}};
+  const std::vector<vcsim::HandFeedback> fb = {{0.25, 0.002}, {-1.5, 0.0}};
   server.publish(fb);
   std::vector<double> v;
   ASSERT_TRUE(wait_until(
@@ -128,17 +136,17 @@ TEST(Igtl, TransformIsDepthAlongZAndAngleAboutZWithTurnsCounted) {
   ASSERT_TRUE(c.connect(server.port()));
   ASSERT_TRUE(c.send_transform("guidewire", 40.0, 30.0));
   ASSERT_TRUE(wait_until([&] { return server.stats().messages_accepted >= 1; }));
-  auto gw = *poll(server).find("guidewire");
-  EXPECT_NEAR(gw.translation_mm, 40.0, 1e-4);
-  EXPECT_NEAR(gw.rotation_deg, 30.0, 1e-4);
+  auto gw = poll(server).drive[kGuidewire];
+  EXPECT_NEAR(gw.translation, mm(40.0), mm(1e-4));
+  EXPECT_NEAR(gw.rotation, deg(30.0), deg(1e-4));
   // Turning on past 180 degrees keeps counting instead of jumping back by a turn.
   std::uint64_t n = server.stats().messages_accepted;
   for (double a : {120.0, 210.0, 300.0, 390.0, 480.0}) {
     ASSERT_TRUE(c.send_transform("guidewire", 41.0, a));
     ASSERT_TRUE(wait_until([&] { return server.stats().messages_accepted > n; }));
     n = server.stats().messages_accepted;
-    gw = *poll(server).find("guidewire");
-    EXPECT_NEAR(gw.rotation_deg, a, 1e-3);
+    gw = poll(server).drive[kGuidewire];
+    EXPECT_NEAR(gw.rotation, deg(a), deg(1e-3));
   }
 }
 
@@ -178,17 +186,17 @@ TEST(Igtl, MalformedAndOutOfRangeMessagesAreDroppedAndLogged) {
   // Still connected (each message was framed correctly), and nothing moved.
   EXPECT_TRUE(server.stats().connected);
   EXPECT_EQ(server.stats().disconnections, 0u);
-  const DeviceCommands cmd = poll(server);
-  EXPECT_DOUBLE_EQ(cmd.find("guidewire")->translation_mm, 10.0);
-  EXPECT_EQ(cmd.find("guidewire")->mode, Mode::kPosition);
-  EXPECT_DOUBLE_EQ(cmd.balloon_pressure_atm, 0.0);
-  EXPECT_DOUBLE_EQ(cmd.syringe_flow_ml_s, 0.0);
+  const StepCommands cmd = poll(server);
+  EXPECT_DOUBLE_EQ(cmd.drive[kGuidewire].translation, mm(10.0));
+  EXPECT_EQ(cmd.drive[kGuidewire].mode, Mode::kPosition);
+  EXPECT_DOUBLE_EQ(cmd.balloon_pressure, 0.0 * 101325.0);
+  EXPECT_DOUBLE_EQ(cmd.syringe_flow, 0.0 * 1e-6);
   EXPECT_EQ(cmd.buttons, 0u);
   EXPECT_TRUE(wait_until([&] { return log.size() >= kBad; }));  // each drop says why
 
   // The connection still works.
   ASSERT_TRUE(c.send_sensor("guidewire", {11.0, 0.0}));
-  ASSERT_TRUE(wait_until([&] { return poll(server).find("guidewire")->translation_mm == 11.0; }));
+  ASSERT_TRUE(wait_until([&] { return poll(server).drive[kGuidewire].translation == mm(11.0); }));
 }
 
 TEST(Igtl, GarbageBytesDropTheConnectionNotTheServer) {
@@ -232,7 +240,7 @@ TEST(Igtl, GarbageBytesDropTheConnectionNotTheServer) {
   Client good;
   ASSERT_TRUE(good.connect(server.port()));
   ASSERT_TRUE(good.send_sensor("catheter", {7.0, 45.0}));
-  ASSERT_TRUE(wait_until([&] { return poll(server).find("catheter")->translation_mm == 7.0; }));
+  ASSERT_TRUE(wait_until([&] { return poll(server).drive[kCatheter].translation == mm(7.0); }));
   std::vector<double> v;
   EXPECT_TRUE(good.read_sensor("force_catheter", v));
 }
@@ -251,14 +259,14 @@ TEST(Igtl, DisconnectLeavesInstrumentsWhereTheyAreAndStopsMotion) {
   }
   ASSERT_TRUE(wait_until([&] { return server.stats().disconnections == 1; }));
   EXPECT_FALSE(server.stats().connected);
-  const DeviceCommands cmd = poll(server);
-  EXPECT_DOUBLE_EQ(cmd.find("guidewire")->translation_mm, 20.0);
-  EXPECT_DOUBLE_EQ(cmd.find("guidewire")->rotation_deg, 90.0);
-  EXPECT_EQ(cmd.find("catheter")->mode, Mode::kVelocity);
-  EXPECT_DOUBLE_EQ(cmd.find("catheter")->translation_mm, 0.0);
-  EXPECT_DOUBLE_EQ(cmd.find("catheter")->rotation_deg, 0.0);
-  EXPECT_DOUBLE_EQ(cmd.balloon_pressure_atm, 6.0);
-  EXPECT_DOUBLE_EQ(cmd.syringe_flow_ml_s, 0.0);
+  const StepCommands cmd = poll(server);
+  EXPECT_DOUBLE_EQ(cmd.drive[kGuidewire].translation, mm(20.0));
+  EXPECT_DOUBLE_EQ(cmd.drive[kGuidewire].rotation, deg(90.0));
+  EXPECT_EQ(cmd.drive[kCatheter].mode, Mode::kVelocity);
+  EXPECT_DOUBLE_EQ(cmd.drive[kCatheter].translation, mm(0.0));
+  EXPECT_DOUBLE_EQ(cmd.drive[kCatheter].rotation, deg(0.0));
+  EXPECT_DOUBLE_EQ(cmd.balloon_pressure, 6.0 * 101325.0);
+  EXPECT_DOUBLE_EQ(cmd.syringe_flow, 0.0 * 1e-6);
 
   // A new client picks up from there; a second one replaces it.
   Client a, b;
@@ -267,7 +275,7 @@ TEST(Igtl, DisconnectLeavesInstrumentsWhereTheyAreAndStopsMotion) {
   ASSERT_TRUE(b.connect(server.port()));
   ASSERT_TRUE(wait_until([&] { return server.stats().connections == 3; }));
   ASSERT_TRUE(b.send_sensor("guidewire", {25.0, 90.0}));
-  ASSERT_TRUE(wait_until([&] { return poll(server).find("guidewire")->translation_mm == 25.0; }));
+  ASSERT_TRUE(wait_until([&] { return poll(server).drive[kGuidewire].translation == mm(25.0); }));
   EXPECT_EQ(server.stats().disconnections, 2u);
 }
 
@@ -293,8 +301,8 @@ TEST(Igtl, AcceptsHeaderVersion2) {
   msg.insert(msg.end(), body.begin(), body.end());
   ASSERT_TRUE(c.send_raw(msg.data(), static_cast<int>(msg.size())));
   ASSERT_TRUE(wait_until([&] { return server.stats().messages_accepted == 1; }));
-  EXPECT_DOUBLE_EQ(poll(server).find("guidewire")->translation_mm, 33.0);
-  EXPECT_DOUBLE_EQ(poll(server).find("guidewire")->rotation_deg, -45.0);
+  EXPECT_DOUBLE_EQ(poll(server).drive[kGuidewire].translation, mm(33.0));
+  EXPECT_DOUBLE_EQ(poll(server).drive[kGuidewire].rotation, deg(-45.0));
 }
 
 TEST(Igtl, OptionsAreCheckedAndShutdownIsPrompt) {
@@ -334,9 +342,9 @@ TEST(Igtl, OptionsAreCheckedAndShutdownIsPrompt) {
   EXPECT_LT(Clock::now() - t0, 500ms);
   EXPECT_FALSE(first.stats().connected);
   // Publishing and polling after stop are harmless.
-  const std::vector<vcsim::ForceFeedback> fb = {{"guidewire", 1.0, 0.0}};
+  const std::vector<vcsim::HandFeedback> fb = {{1.0, 0.0}};
   first.publish(fb);
-  EXPECT_EQ(poll(first).instruments.size(), 2u);
+  EXPECT_EQ(poll(first).drive.size(), 2u);
 }
 
 }  // namespace

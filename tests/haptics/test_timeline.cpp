@@ -7,6 +7,9 @@
 #include <cstring>
 #include <filesystem>
 #include <new>
+#include <numbers>
+#include <string>
+#include <vector>
 
 #include "vcsim/core.h"
 #include "vcsim/haptics.h"
@@ -17,89 +20,115 @@ using vcsim::test::g_allocations;
 
 namespace {
 
-using vcsim::DeviceCommands;
+using vcsim::DriveCommand;
 using vcsim::ScriptedTimeline;
-using Mode = vcsim::InstrumentCommand::Mode;
+using vcsim::StepCommands;
+using Mode = DriveCommand::Mode;
+constexpr double kMm = 1e-3;
+constexpr double kDeg = std::numbers::pi / 180.0;
 
 const std::filesystem::path kExample =
     std::filesystem::path(VCSIM_HAPTICS_TEST_DIR) / "example_timeline.json";
 
-DeviceCommands at(ScriptedTimeline& tl, double t) {
-  DeviceCommands c;
+// The scene's instruments: the timeline's two and one it does not name.
+const std::vector<std::string> kScene = {"guidewire", "catheter", "snare"};
+enum { kGuidewire, kCatheter, kSnare };
+
+ScriptedTimeline bound_example() {
+  ScriptedTimeline tl = ScriptedTimeline::load(kExample);
+  tl.bind(kScene);
+  return tl;
+}
+
+StepCommands at(ScriptedTimeline& tl, double t) {
+  StepCommands c;
   tl.poll(t, c);
   return c;
 }
 
 TEST(Timeline, FollowsTheDocumentedRules) {
-  ScriptedTimeline tl = ScriptedTimeline::load(kExample);
+  ScriptedTimeline tl = bound_example();
   EXPECT_DOUBLE_EQ(tl.duration(), 6.5);
   ASSERT_EQ(tl.instrument_names(), (std::vector<std::string>{"catheter", "guidewire"}));
 
-  // Position keyframes: linear in between, held after the last.
+  // Position keyframes: linear in between, held after the last; in SI, in the scene's order.
   auto c = at(tl, 1.0);
-  EXPECT_EQ(c.time_s, 1.0);
-  ASSERT_EQ(c.instruments.size(), 2u);
-  EXPECT_EQ(c.instruments[1].name, "guidewire");
-  EXPECT_EQ(c.instruments[1].mode, Mode::kPosition);
-  EXPECT_DOUBLE_EQ(c.instruments[1].translation_mm, 25.0);
-  EXPECT_DOUBLE_EQ(c.instruments[1].rotation_deg, 45.0);
+  ASSERT_EQ(c.drive.size(), 3u);
+  EXPECT_EQ(c.drive[kGuidewire].mode, Mode::kPosition);
+  EXPECT_DOUBLE_EQ(c.drive[kGuidewire].translation, 25.0 * kMm);
+  EXPECT_DOUBLE_EQ(c.drive[kGuidewire].rotation, 45.0 * kDeg);
   c = at(tl, 10.0);
-  EXPECT_DOUBLE_EQ(c.find("guidewire")->translation_mm, 50.0);
-  EXPECT_DOUBLE_EQ(c.find("guidewire")->rotation_deg, 90.0);
+  EXPECT_DOUBLE_EQ(c.drive[kGuidewire].translation, 50.0 * kMm);
+  EXPECT_DOUBLE_EQ(c.drive[kGuidewire].rotation, 90.0 * kDeg);
+  // An instrument the timeline does not name is held still.
+  EXPECT_EQ(c.drive[kSnare].mode, Mode::kVelocity);
+  EXPECT_EQ(c.drive[kSnare].translation, 0.0);
+  EXPECT_EQ(c.drive[kSnare].rotation, 0.0);
 
   // A position keyframe followed by a velocity one holds; velocity holds its speed.
-  EXPECT_DOUBLE_EQ(at(tl, 2.4).find("catheter")->translation_mm, 0.0);
-  EXPECT_EQ(at(tl, 2.4).find("catheter")->mode, Mode::kPosition);
+  EXPECT_DOUBLE_EQ(at(tl, 2.4).drive[kCatheter].translation, 0.0);
+  EXPECT_EQ(at(tl, 2.4).drive[kCatheter].mode, Mode::kPosition);
   c = at(tl, 3.0);
-  EXPECT_EQ(c.find("catheter")->mode, Mode::kVelocity);
-  EXPECT_DOUBLE_EQ(c.find("catheter")->translation_mm, 10.0);
-  EXPECT_DOUBLE_EQ(at(tl, 4.49).find("catheter")->translation_mm, 10.0);
-  EXPECT_EQ(at(tl, 4.5).find("catheter")->mode, Mode::kPosition);
-  EXPECT_DOUBLE_EQ(at(tl, 4.5).find("catheter")->translation_mm, 20.0);
+  EXPECT_EQ(c.drive[kCatheter].mode, Mode::kVelocity);
+  EXPECT_DOUBLE_EQ(c.drive[kCatheter].translation, 10.0 * kMm);
+  EXPECT_DOUBLE_EQ(at(tl, 4.49).drive[kCatheter].translation, 10.0 * kMm);
+  EXPECT_EQ(at(tl, 4.5).drive[kCatheter].mode, Mode::kPosition);
+  EXPECT_DOUBLE_EQ(at(tl, 4.5).drive[kCatheter].translation, 20.0 * kMm);
 
   // Before the first keyframe: at the script's starting position.
-  EXPECT_DOUBLE_EQ(at(tl, -1.0).find("guidewire")->translation_mm, 0.0);
+  EXPECT_DOUBLE_EQ(at(tl, -1.0).drive[kGuidewire].translation, 0.0);
 
   // Flow and buttons hold; balloon pressure ramps between its keyframes, 0 before the first.
-  EXPECT_DOUBLE_EQ(at(tl, 2.0).syringe_flow_ml_s, 0.0);
-  EXPECT_DOUBLE_EQ(at(tl, 3.0).syringe_flow_ml_s, 2.0);
+  EXPECT_DOUBLE_EQ(at(tl, 2.0).syringe_flow, 0.0);
+  EXPECT_DOUBLE_EQ(at(tl, 3.0).syringe_flow, 2.0e-6);  // m^3/s
   EXPECT_EQ(at(tl, 3.0).buttons, 1u);
-  EXPECT_DOUBLE_EQ(at(tl, 5.0).syringe_flow_ml_s, 0.0);
+  EXPECT_DOUBLE_EQ(at(tl, 5.0).syringe_flow, 0.0);
   EXPECT_EQ(at(tl, 5.0).buttons, 0u);
-  EXPECT_DOUBLE_EQ(at(tl, 3.0).balloon_pressure_atm, 0.0);
-  EXPECT_DOUBLE_EQ(at(tl, 5.5).balloon_pressure_atm, 4.0);
-  EXPECT_DOUBLE_EQ(at(tl, 7.0).balloon_pressure_atm, 8.0);
+  EXPECT_DOUBLE_EQ(at(tl, 3.0).balloon_pressure, 0.0);
+  EXPECT_DOUBLE_EQ(at(tl, 5.5).balloon_pressure, 4.0 * 101325.0);  // Pa
+  EXPECT_DOUBLE_EQ(at(tl, 7.0).balloon_pressure, 8.0 * 101325.0);
 
   // Feedback is kept for inspection.
-  const std::vector<vcsim::ForceFeedback> fb = {{"guidewire", 0.5, 0.001}};
+  const std::vector<vcsim::HandFeedback> fb = {{0.5, 0.001}, {0.0, 0.0}, {0.0, 0.0}};
   tl.publish(fb);
-  ASSERT_EQ(tl.last_feedback().size(), 1u);
-  EXPECT_EQ(tl.last_feedback()[0].axial_force_n, 0.5);
+  ASSERT_EQ(tl.last_feedback().size(), 3u);
+  EXPECT_EQ(tl.last_feedback()[0].axial_force, 0.5);
 }
 
-bool same(const DeviceCommands& a, const DeviceCommands& b) {
-  if (a.instruments.size() != b.instruments.size()) return false;
-  for (std::size_t i = 0; i < a.instruments.size(); ++i) {
-    const auto &x = a.instruments[i], &y = b.instruments[i];
-    if (x.name != y.name || x.mode != y.mode ||
-        std::memcmp(&x.translation_mm, &y.translation_mm, sizeof(double)) != 0 ||
-        std::memcmp(&x.rotation_deg, &y.rotation_deg, sizeof(double)) != 0)
+// A timeline that names an instrument the scene does not have is refused when it is bound, naming
+// the timeline and the name.
+TEST(Timeline, ANameThatIsNotAnInstrumentIsRefused) {
+  ScriptedTimeline tl = ScriptedTimeline::load(kExample);
+  try {
+    tl.bind(std::vector<std::string>{"guidewire", "sheath"});
+    ADD_FAILURE() << "bound a timeline naming 'catheter' to a scene without one";
+  } catch (const vcsim::InputError& e) {
+    EXPECT_EQ(e.source(), kExample.string());
+    EXPECT_NE(std::string(e.what()).find("'catheter'"), std::string::npos) << e.what();
+  }
+}
+
+bool same(const StepCommands& a, const StepCommands& b) {
+  if (a.drive.size() != b.drive.size()) return false;
+  for (std::size_t i = 0; i < a.drive.size(); ++i) {
+    const auto &x = a.drive[i], &y = b.drive[i];
+    if (x.mode != y.mode || std::memcmp(&x.translation, &y.translation, sizeof(double)) != 0 ||
+        std::memcmp(&x.rotation, &y.rotation, sizeof(double)) != 0)
       return false;
   }
-  return std::memcmp(&a.time_s, &b.time_s, sizeof(double)) == 0 &&
-         std::memcmp(&a.balloon_pressure_atm, &b.balloon_pressure_atm, sizeof(double)) == 0 &&
-         std::memcmp(&a.syringe_flow_ml_s, &b.syringe_flow_ml_s, sizeof(double)) == 0 &&
+  return std::memcmp(&a.balloon_pressure, &b.balloon_pressure, sizeof(double)) == 0 &&
+         std::memcmp(&a.syringe_flow, &b.syringe_flow, sizeof(double)) == 0 &&
          a.buttons == b.buttons;
 }
 
 TEST(Timeline, ReplaysToTheSameCommandsBitForBit) {
-  ScriptedTimeline a = ScriptedTimeline::load(kExample);
-  ScriptedTimeline b = ScriptedTimeline::load(kExample);
+  ScriptedTimeline a = bound_example();
+  ScriptedTimeline b = bound_example();
   const int steps = 8000;  // 1 kHz over 8 s, past the last keyframe
-  std::vector<DeviceCommands> first(steps);
+  std::vector<StepCommands> first(steps);
   for (int i = 0; i < steps; ++i) a.poll(i * 1e-3, first[i]);
   // A second instance, and the same instance polled backwards (state-free: a pure function of t).
-  DeviceCommands c;
+  StepCommands c;
   for (int i = 0; i < steps; ++i) {
     b.poll(i * 1e-3, c);
     ASSERT_TRUE(same(first[i], c)) << "step " << i;
@@ -114,8 +143,8 @@ TEST(Timeline, WarmPollAllocatesNothing) {
 #ifdef VCSIM_SANITIZE
   GTEST_SKIP() << "the sanitizer runtime owns operator new";
 #else
-  ScriptedTimeline tl = ScriptedTimeline::load(kExample);
-  DeviceCommands c;
+  ScriptedTimeline tl = bound_example();
+  StepCommands c;
   tl.poll(0.0, c);
   const long before = g_allocations.load();
   for (int i = 0; i < 5000; ++i) tl.poll(i * 1e-3, c);

@@ -24,11 +24,11 @@ inline Scenario jl4_with_j_wire(int nodes, bool beating) {
       "jl4-j.json");
 }
 
-inline DeviceCommands jl4_with_j_wire_commands() {
-  DeviceCommands cmds;
-  cmds.instruments.resize(2);
-  cmds.instruments[0].name = "catheter";
-  cmds.instruments[1].name = "wire";
+// Both hands in position mode at depth 0: [0] the catheter, [1] the wire.
+inline StepCommands jl4_with_j_wire_commands() {
+  StepCommands cmds;
+  cmds.reset(2);
+  for (DriveCommand& d : cmds.drive) d.mode = DriveCommand::Mode::kPosition;
   return cmds;
 }
 

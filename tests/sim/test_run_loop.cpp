@@ -6,6 +6,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <csignal>
 #include <thread>
 
@@ -65,16 +66,15 @@ TEST(SimulatorRunLoop, PacerRecordsLatenessAndDoesNotRace) {
 // An input that counts what the loop asks of it.
 class CountingInput : public InputSource {
  public:
-  void poll(double sim_time, DeviceCommands& out) override {
+  void poll(double, StepCommands& out) override {
     ++polls;
-    out.time_s = sim_time;
-    out.instruments.resize(1);
-    out.instruments[0].name = "wire";
-    out.instruments[0].translation_mm = 20.0;
+    out.drive.resize(1);
+    out.drive[0].mode = DriveCommand::Mode::kPosition;
+    out.drive[0].translation = 0.020;
   }
-  void publish(std::span<const ForceFeedback> feedback) override {
+  void publish(std::span<const HandFeedback> feedback) override {
     ++publishes;
-    if (feedback.size() != 1 || feedback[0].name != "wire") ++bad_feedback;
+    if (feedback.size() != 1 || !std::isfinite(feedback[0].axial_force)) ++bad_feedback;
   }
   int polls = 0, publishes = 0, bad_feedback = 0;
 };
@@ -101,7 +101,7 @@ TEST(SimulatorRunLoop, PollsStepsAndPublishesUntilItsEnd) {
   EXPECT_TRUE(st.stopped);
   EXPECT_EQ(st.steps, 0);
   struct StopAfter : RunObserver {
-    bool before_step(const Simulator& sim, const DeviceCommands&) override {
+    bool before_step(const Simulator& sim, const StepCommands&) override {
       return sim.metrics().steps < 210;
     }
   } observer;

@@ -68,33 +68,36 @@ TEST(MassScaling, MakesTheStepStableAndOnlyAddsMass) {
 TEST(Contrast, FillsDownstreamAfterTheDelayAndWashesOut) {
   const VesselTree tree = default_patient();
   ContrastSettings s;
-  s.blood_flow = 1.5;
+  s.blood_flow = 1.5e-6;  // m^3/s
   s.blood_speed = 0.2;
   s.washout = 1.0;
   const double dt = 1e-3;
-  ContrastModel m(tree, s, dt);
+  ContrastState m = make_contrast_state(tree, dt);
+  auto step = [&](double flow, const TreeLocation& where) {
+    contrast_step(tree, s, dt, flow, where, m);
+  };
   const int lm = tree.find("left_main"), lad = tree.find("lad"), rca = tree.find("rca");
   const TreeLocation at{lm, ostium_distance(tree, lm) + 2e-3};
-  const double q = 3.0;
+  const double q = 3.0e-6;  // m^3/s
   // The LAD starts where the left main ends: contrast reaches it after (length - at) / speed.
   const double delay = (attach_distance(tree, lad) - at.distance) / s.blood_speed;
   int steps = 0;
-  for (; steps * dt < delay - 0.01; ++steps) m.step(q, at);
-  EXPECT_GT(m.concentration()[lm], 0.05f);
-  EXPECT_LT(m.concentration()[lad], 1e-6f);
-  for (; steps * dt < 2.0; ++steps) m.step(q, at);
+  for (; steps * dt < delay - 0.01; ++steps) step(q, at);
+  EXPECT_GT(m.concentration[lm], 0.05f);
+  EXPECT_LT(m.concentration[lad], 1e-6f);
+  for (; steps * dt < 2.0; ++steps) step(q, at);
   const double c_inf = q / (q + s.blood_flow);  // closed form, full-strength contrast
-  EXPECT_NEAR(m.concentration()[lad], c_inf, 0.01 * c_inf);
-  EXPECT_NEAR(m.concentration()[lm], c_inf, 0.01 * c_inf);
-  EXPECT_EQ(m.concentration()[rca], 0.0f);  // not downstream
-  EXPECT_NEAR(m.volume(), q * steps * dt, 1e-9);
+  EXPECT_NEAR(m.concentration[lad], c_inf, 0.01 * c_inf);
+  EXPECT_NEAR(m.concentration[lm], c_inf, 0.01 * c_inf);
+  EXPECT_EQ(m.concentration[rca], 0.0f);  // not downstream
+  EXPECT_NEAR(m.volume, q * steps * dt, 1e-15);
   // Washout: after the bolus the LAD clears with the time constant.
-  const float c0 = m.concentration()[lad];
+  const float c0 = m.concentration[lad];
   const int lag = static_cast<int>(std::ceil(delay / dt)) + 1;
-  for (int k = 0; k < lag; ++k) m.step(0.0, {});
-  const float c1 = m.concentration()[lad];
-  for (int k = 0; k < 1000; ++k) m.step(0.0, {});
-  EXPECT_NEAR(m.concentration()[lad] / c1, std::exp(-1.0), 0.01);
+  for (int k = 0; k < lag; ++k) step(0.0, {});
+  const float c1 = m.concentration[lad];
+  for (int k = 0; k < 1000; ++k) step(0.0, {});
+  EXPECT_NEAR(m.concentration[lad] / c1, std::exp(-1.0), 0.01);
   EXPECT_LE(c1, c0);
 }
 
@@ -113,12 +116,12 @@ Scenario wire_only(double push_mm, double seconds) {
 
 TEST(Simulator, ScriptedPushFollowsTheIliacRoute) {
   Simulator sim(wire_only(150, 2.0));
-  DeviceCommands cmds;
-  cmds.instruments.resize(1);
-  cmds.instruments[0].name = "wire";
-  const double speed_mm_s = 100.0;
+  StepCommands cmds;
+  cmds.reset(1);
+  cmds.drive[0].mode = DriveCommand::Mode::kPosition;
+  const double speed = 0.1;  // m/s
   while (sim.time() < 1.5) {
-    cmds.instruments[0].translation_mm = std::min(150.0, speed_mm_s * sim.time());
+    cmds.drive[0].translation = std::min(0.150, speed * sim.time());
     sim.step(cmds);
   }
   const SimMetrics& m = sim.metrics();
@@ -132,10 +135,10 @@ TEST(Simulator, ScriptedPushFollowsTheIliacRoute) {
   EXPECT_GT(m.tip_path[0], 0.12);
   EXPECT_LT(m.tip_path[0], 0.20);
   // Every inserted node stays in the lumen (within its own radius of the wall).
-  const Instrument& in = sim.instrument(0);
-  for (int i = in.drive.first_free; i < in.model.n; ++i) {
-    ASSERT_TRUE(in.state.x[i].allFinite());
-    EXPECT_LT(locate(sim.tree(), in.state.x[i]).outside, 0.5e-3) << "node " << i;
+  const InstrumentState& in = sim.instrument(0);
+  for (int i = in.drive.first_free; i < sim.rod_model(0).n; ++i) {
+    ASSERT_TRUE(in.rod.x[i].allFinite());
+    EXPECT_LT(locate(sim.tree(), in.rod.x[i]).outside, 0.5e-3) << "node " << i;
   }
   // The hand feels the push (resistance from the wall), not a spike: bounded.
   EXPECT_LT(std::abs(in.drive.axial_force), 5.0);
@@ -152,12 +155,12 @@ double pull_j_into_catheter(int fine_steps, double pull, Check&& check, double j
   sc.fine_steps = fine_steps;
   sc.fine_step_jump = jump;
   Simulator sim(sc);
-  DeviceCommands cmds = test::jl4_with_j_wire_commands();
+  StepCommands cmds = test::jl4_with_j_wire_commands();
   constexpr double kCath = 0.25, kOut = 0.04, kIn = 0.08, kAccel = 3.0, kBack = 0.1;
   const double dt = sc.dt;
   while (sim.time() < (kCath + kOut) / kIn + 0.3) {  // both in at 80 mm/s, the wire ahead
-    cmds.instruments[1].translation_mm = 1e3 * std::min(kCath + kOut, kIn * sim.time());
-    cmds.instruments[0].translation_mm = 1e3 * std::clamp(kIn * sim.time() - kOut, 0.0, kCath);
+    cmds.drive[1].translation = std::min(kCath + kOut, kIn * sim.time());
+    cmds.drive[0].translation = std::clamp(kIn * sim.time() - kOut, 0.0, kCath);
     sim.step(cmds);
   }
   std::vector<double> f;
@@ -166,7 +169,7 @@ double pull_j_into_catheter(int fine_steps, double pull, Check&& check, double j
   while (depth > end + 1e-9) {
     v = std::min({pull, v + kAccel * dt, std::sqrt(2.0 * kAccel * (depth - end))});
     depth = std::max(end, depth - v * dt);
-    cmds.instruments[1].translation_mm = depth * 1e3;
+    cmds.drive[1].translation = depth;
     sim.step(cmds);
     f.push_back(sim.instrument(1).drive.axial_force);
     check(sim);
@@ -196,12 +199,12 @@ TEST(Simulator, AFastPullIsSteppedFinerAndReadsSmoothly) {
   const double fine = pull_j_into_catheter(defaults.fine_steps, 0.3, [&](const Simulator& sim) {
     const int n = sim.num_instruments();
     if (start.empty())  // the first step of the pull is slow: the coarse masses
-      for (int i = 0; i < n; ++i) start.push_back(sim.instrument(i).model.node_mass);
+      for (int i = 0; i < n; ++i) start.push_back(sim.instrument_model(i).rod(1).node_mass);
     last.clear();
     split_steps += sim.split() > 1 ? 1 : 0;
     most = std::max(most, sim.split());
     for (int i = 0; i < n; ++i) {
-      const RodModel& md = sim.instrument(i).model;
+      const RodModel& md = sim.instrument_model(i).rod(sim.split());  // the step's masses
       last.push_back(md.node_mass);
       // Each step is stable for the step it takes (the masses of its split).
       EXPECT_GE(estimate_stable_dt(md, {}) * (1 + 1e-9), 0.5e-3 / sim.split());
@@ -225,9 +228,9 @@ TEST(Simulator, AFastPullIsSteppedFinerAndReadsSmoothly) {
   // Slower than the threshold: the same run, bit for bit, whatever fine_steps is.
   std::vector<double> a, b;
   pull_j_into_catheter(
-      1, 0.05, [&](const Simulator& sim) { a.push_back(sim.instrument(1).state.x.back().x()); });
+      1, 0.05, [&](const Simulator& sim) { a.push_back(sim.instrument(1).rod.x.back().x()); });
   pull_j_into_catheter(
-      8, 0.05, [&](const Simulator& sim) { b.push_back(sim.instrument(1).state.x.back().x()); });
+      8, 0.05, [&](const Simulator& sim) { b.push_back(sim.instrument(1).rod.x.back().x()); });
   EXPECT_EQ(a, b);
 }
 
@@ -268,22 +271,22 @@ TEST(Simulator, AScriptedTimelineReplaysToTheSameStateHash) {
   };
   auto run = [](const std::string& text) {
     ScriptedTimeline tl = ScriptedTimeline::parse(text, "replay.json");
+    tl.bind(std::vector<std::string>{"catheter", "wire"});
     Simulator sim(test::jl4_with_j_wire(64, true));
-    DeviceCommands cmds;
-    std::vector<ForceFeedback> fb;
+    StepCommands cmds;
+    std::vector<HandFeedback> fb;
     Replay r;
     while (sim.time() < 1.3) {
       tl.poll(sim.time(), cmds);
       sim.step(cmds);
       sim.feedback(fb);
-      for (const ForceFeedback& f : fb) {
-        r.feel.push_back(f.axial_force_n);
-        r.feel.push_back(f.torque_nm);
+      for (const HandFeedback& f : fb) {
+        r.feel.push_back(f.axial_force);
+        r.feel.push_back(f.torque);
       }
     }
     EXPECT_EQ(sim.metrics().rollbacks, 0);
-    for (int i = 0; i < sim.num_instruments(); ++i)
-      r.state.push_back(sim.instrument(i).state.hash());
+    for (int i = 0; i < sim.num_instruments(); ++i) r.state.push_back(sim.instrument(i).rod.hash());
     return r;
   };
   const Replay a = run(timeline(100.0)), b = run(timeline(100.0)), c = run(timeline(101.0));
@@ -297,7 +300,8 @@ TEST(Simulator, AScriptedTimelineReplaysToTheSameStateHash) {
 TEST(Simulator, ParkedInstrumentsDoNotMove) {
   Simulator sim(wire_only(0, 1.0));
   const Vec3 tip0 = sim.tip(0);
-  DeviceCommands none;  // no command: the hand holds it outside
+  StepCommands none;  // velocity 0: the hand holds it outside
+  none.reset(1);
   for (int k = 0; k < 100; ++k) sim.step(none);
   EXPECT_EQ((sim.tip(0) - tip0).norm(), 0.0);
   EXPECT_EQ(sim.metrics().tip_path[0], 0.0);
@@ -321,7 +325,7 @@ TEST(Autopilot, DefaultScenarioReachesTheAscendingAorta) {
   Scenario sc = load_scenario(default_scenarios_dir() / "default.json");
   Simulator sim(sc);
   Autopilot pilot(sim);
-  DeviceCommands cmds;
+  StepCommands cmds;
   const double budget = 10.0;  // s of simulated time
   double done = -1.0;          // when the J wire's phase ended
   while (sim.time() < budget && !pilot.finished()) {
@@ -332,7 +336,7 @@ TEST(Autopilot, DefaultScenarioReachesTheAscendingAorta) {
   }
   EXPECT_GE(done, 0.0) << pilot.status();
   const SimMetrics& m = sim.metrics();
-  ASSERT_EQ(m.landmarks[0].name, "ascending aorta");
+  ASSERT_EQ(sc.landmarks[0].name, "ascending aorta");
   EXPECT_TRUE(m.landmarks[0].reached);
   EXPECT_LT(m.landmarks[0].time, budget);
   EXPECT_FALSE(pilot.failed()) << pilot.status();
@@ -364,19 +368,20 @@ TEST(Autopilot, DefaultScenarioReachesEveryLandmark) {
   Scenario sc = load_scenario(default_scenarios_dir() / "default.json");
   Simulator sim(sc);
   Autopilot pilot(sim);
-  DeviceCommands cmds;
+  StepCommands cmds;
   while (sim.time() < sc.time_limit && !pilot.finished()) {
     pilot.command(sim, cmds);
     sim.step(cmds);
   }
   EXPECT_FALSE(pilot.failed()) << pilot.status();
   EXPECT_EQ(sim.metrics().rollbacks, 0);
-  for (const LandmarkRecord& l : sim.metrics().landmarks) {
-    EXPECT_TRUE(l.reached) << l.name;
-    EXPECT_LT(l.time, sc.time_limit) << l.name;
+  for (std::size_t k = 0; k < sc.landmarks.size(); ++k) {
+    const LandmarkRecord& l = sim.metrics().landmarks[k];
+    EXPECT_TRUE(l.reached) << sc.landmarks[k].name;
+    EXPECT_LT(l.time, sc.time_limit) << sc.landmarks[k].name;
   }
   // Contrast was injected through the guide and filled the LAD.
-  EXPECT_GT(sim.metrics().contrast_volume, 5.0);
+  EXPECT_GT(sim.state().contrast.volume, 5.0e-6);  // m^3
   EXPECT_GT(sim.contrast()[sim.tree().find("lad")], 0.3f);
 }
 

@@ -20,9 +20,8 @@ TEST(SimulatorNoAlloc, WarmStepsThroughAFastPullAllocateNothing) {
 #else
   const Scenario sc = test::jl4_with_j_wire(128, true);
   Simulator sim(sc);
-  DeviceCommands cmds = test::jl4_with_j_wire_commands();
-  std::vector<ForceFeedback> fb;
-  const double coarse_tip_mass = sim.instrument(1).model.node_mass.back();
+  StepCommands cmds = test::jl4_with_j_wire_commands();
+  std::vector<HandFeedback> fb;
   int fine = 0, coarse = 0;  // steps taken with each mass set
   // In at 80 mm/s (the wire 20 mm ahead), then the wire 30 mm back at 300 mm/s and in again at
   // 300 mm/s, twice: the second round, warm, must not allocate.
@@ -30,22 +29,22 @@ TEST(SimulatorNoAlloc, WarmStepsThroughAFastPullAllocateNothing) {
     double depth = 0.14;
     while (sim.time() < t0 + 0.2) {
       depth = std::max(0.11, depth - 0.3 * sc.dt);
-      cmds.instruments[1].translation_mm = depth * 1e3;
+      cmds.drive[1].translation = depth;
       sim.step(cmds);
       sim.feedback(fb);
-      ++(sim.instrument(1).model.node_mass.back() < coarse_tip_mass ? fine : coarse);
+      ++(sim.split() > 1 ? fine : coarse);
     }
     while (sim.time() < t0 + 0.4) {
       depth = std::min(0.14, depth + 0.3 * sc.dt);
-      cmds.instruments[1].translation_mm = depth * 1e3;
+      cmds.drive[1].translation = depth;
       sim.step(cmds);
       sim.feedback(fb);
-      ++(sim.instrument(1).model.node_mass.back() < coarse_tip_mass ? fine : coarse);
+      ++(sim.split() > 1 ? fine : coarse);
     }
   };
   while (sim.time() < 1.75) {
-    cmds.instruments[0].translation_mm = std::min(120.0, 80.0 * sim.time());
-    cmds.instruments[1].translation_mm = std::min(140.0, 80.0 * sim.time() + 20.0);
+    cmds.drive[0].translation = std::min(0.120, 0.080 * sim.time());
+    cmds.drive[1].translation = std::min(0.140, 0.080 * sim.time() + 0.020);
     sim.step(cmds);
   }
   round(sim.time());

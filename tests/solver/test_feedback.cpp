@@ -7,10 +7,12 @@
 #include <array>
 #include <cmath>
 #include <numbers>
+#include <optional>
 #include <string>
 #include <tuple>
 #include <vector>
 
+#include "solver_rig.h"
 #include "test_rods.h"
 #include "vcsim/solver.h"
 
@@ -62,7 +64,7 @@ struct CapstanScene {
   static constexpr double kAngle = std::numbers::pi / 2;
   TriangleMesh mesh;
   AabbTree tree;
-  Instrument inst;
+  std::optional<test::Rig> inst;
   SolverSettings s;
   CapstanScene(double mu, HandForce hand_force) {
     BentTubeSpec spec;
@@ -79,8 +81,8 @@ struct CapstanScene {
     Sheath sheath;
     sheath.access_point = Vec3(0, 0, -5e-3);  // 5 mm before the tube's open end, on its axis
     sheath.max_speed = 0.05;
-    inst = make_instrument(d, sheath, ContactMaterial{mu, mu}, 0.0);
-    scale_for_time_step(inst.model, kDt, kQuasiStaticKpRatio);
+    inst.emplace(test::driven(d, sheath, ContactMaterial{mu, mu}, 0.0));
+    scale_for_time_step(inst->model.instruments[0].rods[0], kDt, kQuasiStaticKpRatio);
     s.rod.dt = kDt;
     set_quasi_static_damping(s.rod);
     s.hand_force = hand_force;
@@ -88,8 +90,8 @@ struct CapstanScene {
   // Mean hand force over the second half of `steps` steps of the command.
   double mean_force(StaticWall& wall, const DriveCommand& c, int steps) {
     return mean_of_second_half(steps, [&] {
-      instrument_step(inst, &wall, s, c);
-      return inst.drive.axial_force;
+      inst->step(&wall, s, c);
+      return inst->drive().axial_force;
     });
   }
 };
@@ -102,21 +104,21 @@ TEST_P(Capstan, HandForceFollowsTheCapstanEquation) {
   const auto [mu, hand_force] = GetParam();
   CapstanScene sc(mu, hand_force);
   StaticWall wall(sc.mesh, sc.tree);
-  Instrument& in = sc.inst;
+  test::Rig& in = *sc.inst;
   // Unloaded, insert the tip 30 mm past the bend; then load it and let it settle.
   const double depth = 5e-3 + 30e-3 + 15e-3 * CapstanScene::kAngle + 30e-3;
   using Mode = DriveCommand::Mode;
   const double insert = sc.mean_force(wall, {Mode::kPosition, depth, 0.0}, 1800);  // at 50 mm/s
-  EXPECT_NEAR(in.drive.depth, depth, 1e-6);
+  EXPECT_NEAR(in.drive().depth, depth, 1e-6);
   EXPECT_LT(std::abs(insert), 0.02) << "an unloaded string slides in almost freely";
-  in.state.f_ext.back() = Vec3(CapstanScene::kTipLoad, 0.0, 0.0);
+  in.rod().f_ext.back() = Vec3(CapstanScene::kTipLoad, 0.0, 0.0);
   sc.mean_force(wall, {Mode::kVelocity, 0.0, 0.0}, 1000);
   // The hand pulls the string back at 5 mm/s, then pushes it on: axial force < 0 means the
   // string pulls the hand inward.
   const double pull = sc.mean_force(wall, {Mode::kVelocity, -5e-3, 0.0}, 1500);
   const double push = sc.mean_force(wall, {Mode::kVelocity, 5e-3, 0.0}, 1500);
   expect_capstan(mu, CapstanScene::kTipLoad, pull, push);
-  EXPECT_GT(in.state.x.back().x(), 15e-3) << "the tip stayed past the bend";
+  EXPECT_GT(in.rod().x.back().x(), 15e-3) << "the tip stayed past the bend";
 }
 
 INSTANTIATE_TEST_SUITE_P(MuAndDefinition, Capstan, kMuAndDefinition, param_name);
@@ -129,8 +131,7 @@ namespace {
 struct LumenCapstanScene {
   static constexpr double kDt = 1e-3;
   CapstanScene tube{0.1, HandForce::kQuasiStatic};
-  std::vector<Instrument> insts;  // [0] string, [1] catheter
-  std::vector<Coupling> couplings;
+  std::optional<test::Rig> insts;  // [0] string, [1] catheter
   SolverSettings s;
   LumenCapstanScene(double mu, HandForce hand_force) {
     Sheath sheath;
@@ -139,21 +140,24 @@ struct LumenCapstanScene {
     const RodDef wire = test::free_rod(0.2, 200, 0.3e-3, 1e7);
     RodDef cath = test::free_rod(0.2, 100, 1.0e-3, 1e8);
     cath.inner_radius = 0.6e-3;
-    insts.push_back(make_instrument(wire, sheath, ContactMaterial{0.1, 0.1}, 0.0));
-    insts.push_back(make_instrument(cath, sheath, ContactMaterial{0.1, 0.1}, 0.0));
-    for (Instrument& in : insts) scale_for_time_step(in.model, kDt, kQuasiStaticKpRatio);
-    Coupling c;
+    std::vector<InstrumentModel> models;
+    models.push_back(make_instrument_model(wire, sheath, ContactMaterial{0.1, 0.1}));
+    models.push_back(make_instrument_model(cath, sheath, ContactMaterial{0.1, 0.1}));
+    for (InstrumentModel& im : models) scale_for_time_step(im.rods[0], kDt, kQuasiStaticKpRatio);
+    std::vector<InstrumentState> states;
+    for (const InstrumentModel& im : models) states.push_back(make_instrument_state(im, 0.0));
+    CouplingModel c;
     c.inner = 0;
     c.outer = 1;
     c.mu = mu;
-    couplings.push_back(c);
     s = tube.s;
     s.hand_force = hand_force;
+    insts.emplace(std::move(models), std::move(states), s, std::vector<CouplingModel>{c});
   }
   double mean_wire_force(StaticWall& wall, const std::array<DriveCommand, 2>& c, int steps) {
     return mean_of_second_half(steps, [&] {
-      step_instruments(insts, couplings, &wall, s, c);
-      return insts[0].drive.axial_force;
+      insts->step(&wall, c);
+      return insts->drive(0).axial_force;
     });
   }
 };
@@ -174,7 +178,7 @@ TEST_P(LumenCapstan, WireInACatheterFollowsTheCapstanEquation) {
   const DriveCommand place_wire{Mode::kPosition, bend_end + 25e-3, 0.0};
   sc.mean_wire_force(wall, {hold, place_catheter}, 2000);
   sc.mean_wire_force(wall, {place_wire, hold}, 1800);
-  sc.insts[0].state.f_ext.back() = Vec3(CapstanScene::kTipLoad, 0.0, 0.0);
+  sc.insts->rod(0).f_ext.back() = Vec3(CapstanScene::kTipLoad, 0.0, 0.0);
   sc.mean_wire_force(wall, {hold, hold}, 1000);
   const double pull =
       sc.mean_wire_force(wall, {DriveCommand{Mode::kVelocity, -5e-3, 0.0}, hold}, 1500);

@@ -6,13 +6,30 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <optional>
+#include <span>
 
 #include "vcsim/experiments.h"
 #include "vcsim/instruments.h"
 
+#include "solver_rig.h"
+
 using namespace vcsim;
 
 namespace {
+
+// One instrument of a scene as the tests read it: its rod's model, its rod's state and its drive.
+struct Inst {
+  const RodModel& model;
+  RodState& state;
+  DriveState& drive;
+};
+Inst inst(const SolverModel& m, SolverState& s, int i) {
+  return {m.instruments[i].rod(), s.instruments[i].rod, s.instruments[i].drive};
+}
+Inst inst(test::Rig& r, int i) {
+  return inst(r.model, r.state, i);
+}
 
 double segment_distance(const Vec3& a, const Vec3& b, const Vec3& p) {
   const Vec3 ab = b - a;
@@ -28,9 +45,9 @@ constexpr double kTipMargin = 2.5e-3;
 
 // Worst radial offset of the wire's nodes inside the catheter from the catheter's centreline
 // (brute force over the catheter's edges: independent of the coupling's own bookkeeping).
-double worst_offset(const PairScene& sc) {
-  const Instrument& w = sc.instruments[0];
-  const Instrument& c = sc.instruments[1];
+double worst_offset(PairScene& sc) {
+  const Inst w = inst(sc.model, sc.state, 0);
+  const Inst c = inst(sc.model, sc.state, 1);
   double worst = 0.0;
   for (int i = w.drive.first_free; i < w.model.n; ++i) {
     const double sigma = w.model.node_s[i] - (w.model.length - w.drive.depth);
@@ -50,8 +67,9 @@ TEST(Pair, WireStaysInTheCatheterThroughInsertionRotationAndWithdrawal) {
   PairOptions o;
   o.nodes = 128;
   PairScene sc = make_pair_scene(o);
-  const double clearance = 0.5 * (sc.instruments[1].model.inner_radius[0] * 2 -
-                                  sc.instruments[0].model.outer_radius[0] * 2);
+  SolverWorkspace ws(sc.model);
+  const double clearance = 0.5 * (sc.model.instruments[1].rod().inner_radius[0] * 2 -
+                                  sc.model.instruments[0].rod().outer_radius[0] * 2);
   ASSERT_GT(clearance, 0.0);
   struct Phase {
     DriveCommand wire, cath;
@@ -69,14 +87,14 @@ TEST(Pair, WireStaysInTheCatheterThroughInsertionRotationAndWithdrawal) {
   for (int p = 0; p < 3; ++p) {
     const DriveCommand cmds[] = {phases[p].wire, phases[p].cath};
     for (int k = 0; k < phases[p].steps; ++k) {
-      step_instruments(sc.instruments, sc.couplings, &wall, sc.settings, cmds);
+      ASSERT_FALSE(solver_step(sc.model, sc.state, ws, &wall, cmds).rolled_back);
       if (k % 25 == 0) {
         worst[p] = std::max(worst[p], worst_offset(sc));
-        coupled = std::max(coupled, static_cast<int>(sc.couplings[0].contacts.size()));
+        coupled = std::max(coupled, static_cast<int>(ws.coupling_contacts(0).size()));
       }
     }
   }
-  for (const auto& in : sc.instruments) ASSERT_TRUE(in.state.x.back().allFinite());
+  for (const auto& in : sc.state.instruments) ASSERT_TRUE(in.rod.x.back().allFinite());
   EXPECT_GT(coupled, 10) << "the coupling must have been active";
   EXPECT_LE(worst[0], 1.05 * clearance) << "insertion; clearance " << clearance;
   EXPECT_LE(worst[1], 1.05 * clearance) << "rotation; clearance " << clearance;
@@ -90,21 +108,22 @@ TEST(Pair, ParallelInstrumentsGiveTheSameSteps) {
   o.nodes = 256;  // the smallest instruments that go parallel
   auto run = [&](bool parallel) {
     PairScene sc = make_pair_scene(o);
-    sc.settings.parallel_instruments = parallel;
-    for (const Instrument& in : sc.instruments) EXPECT_GE(in.model.n, 256);
+    sc.model.settings[0].parallel_instruments = parallel;
+    SolverWorkspace ws(sc.model);
+    for (const InstrumentModel& im : sc.model.instruments) EXPECT_GE(im.rod().n, 256);
     StaticWall wall = sc.wall();
     using M = DriveCommand::Mode;
     const DriveCommand cmds[] = {{M::kVelocity, 0.02, 2.0}, {M::kVelocity, 0.01, -1.0}};
     int coupled = 0, queries = 0;
     StepProfile prof;
     for (int k = 0; k < 600; ++k) {
-      step_instruments(sc.instruments, sc.couplings, &wall, sc.settings, cmds, &prof);
-      coupled = std::max(coupled, static_cast<int>(sc.couplings[0].contacts.size()));
+      solver_step(sc.model, sc.state, ws, &wall, cmds, &prof);
+      coupled = std::max(coupled, static_cast<int>(ws.coupling_contacts(0).size()));
       queries += prof.num_queries;
     }
     EXPECT_GT(coupled, 10) << "the coupling must have been active";
     EXPECT_GT(queries, 100) << "the wall must have been queried";
-    return std::pair(sc.instruments[0].state.hash(), sc.instruments[1].state.hash());
+    return std::pair(sc.state.instruments[0].rod.hash(), sc.state.instruments[1].rod.hash());
   };
   EXPECT_EQ(run(false), run(true));
 }
@@ -112,14 +131,14 @@ TEST(Pair, ParallelInstrumentsGiveTheSameSteps) {
 namespace {
 
 // Angle (rad) between the sheath axis (+z) and the catheter's edge at arc length s.
-double edge_angle(const Instrument& c, double s) {
+double edge_angle(const Inst& c, double s) {
   int j = 0;
   while (j + 1 < c.model.m && c.model.node_s[j + 1] < s) ++j;
   const Vec3 e = (c.state.x[j + 1] - c.state.x[j]).normalized();
   return std::acos(std::clamp(e.z(), -1.0, 1.0));
 }
 
-double tip_offset(const Instrument& c) {
+double tip_offset(const Inst& c) {
   const Vec3& x = c.state.x.back();
   return std::hypot(x.x(), x.y());
 }
@@ -142,31 +161,32 @@ TEST(Pair, JudkinsTipStraightensOverAStiffWireAndRecovers) {
   Discretisation disc;
   disc.tip_segment = 2e-3;
   disc.max_nodes = 81;
-  std::vector<Instrument> insts;
+  std::vector<InstrumentModel> models;
+  std::vector<InstrumentState> states;
   for (const InstrumentSpec* sp : {&wsp, &cs}) {
     RodDef def = to_rod_def(*sp, disc);
     def.base = BoundaryKind::kFree;
     def.tip = BoundaryKind::kFree;
-    Instrument in = make_instrument(def, Sheath{}, ContactMaterial{}, 0.0);
-    scale_for_time_step(in.model, dt, 5.0);
-    insts.push_back(std::move(in));
+    models.push_back(make_instrument_model(def, Sheath{}, ContactMaterial{}));
+    scale_for_time_step(models.back().rods[0], dt, 5.0);
+    states.push_back(make_instrument_state(models.back(), 0.0));
   }
-  const Instrument& w = insts[0];
-  const Instrument& c = insts[1];
-  std::vector<Coupling> cps(1);
-  cps[0].mu = cs.friction.lumen;
-  cps[0].contacts.reserve(w.model.n);
+  CouplingModel cp;
+  cp.mu = cs.friction.lumen;
   SolverSettings s;
   s.rod.dt = dt;
   s.rod.drag = 1.5;
   s.rod.angular_drag = 1.5;
   s.rod.internal_damping = 0.4 * dt;
   s.collisions = false;
+  test::Rig insts(std::move(models), std::move(states), s, {cp});
+  const Inst w = inst(insts, 0);
+  const Inst c = inst(insts, 1);
   using M = DriveCommand::Mode;
   const double cath_depth = c.model.length - c.model.rest_length[0];
   auto run = [&](double wire_depth, int steps) {
     const DriveCommand cmds[] = {{M::kPosition, wire_depth, 0.0}, {M::kPosition, cath_depth, 0.0}};
-    for (int k = 0; k < steps; ++k) step_instruments(insts, cps, nullptr, s, cmds);
+    for (int k = 0; k < steps; ++k) insts.step(nullptr, cmds);
   };
   const double deg = 180.0 / std::numbers::pi;
   // The design: the primary curve (160 deg, radius 12 mm) ends 57.85 mm from the tip, where the
@@ -197,7 +217,7 @@ TEST(Pair, JudkinsTipStraightensOverAStiffWireAndRecovers) {
   const double ei_c = c.model.youngs[jc] * c.model.bend_inertia[jc];
   const double ei_w = w.model.youngs[0] * w.model.bend_inertia[0];
   const double ratio = ei_c / (ei_c + ei_w);
-  const double lumen_play = 16.0 * cps[0].clearance / arc;
+  const double lumen_play = 16.0 * insts.ws.coupling_clearance(0) / arc;
   EXPECT_GT(wire_angle, 0.8 * ratio * design_angle)
       << "EI ratio " << ratio << ", angle " << wire_angle * deg << " deg";
   EXPECT_LT(wire_angle, ratio * design_angle + lumen_play)
@@ -206,7 +226,7 @@ TEST(Pair, JudkinsTipStraightensOverAStiffWireAndRecovers) {
   // Withdrawn into the straight shaft: the curve comes back.
   for (int k = 1; k <= 17; ++k) run(0.22 - 0.01 * k, 600);
   run(0.05, relax);
-  for (const auto& in : insts) ASSERT_TRUE(in.state.x.back().allFinite());
+  for (const auto& in : insts.state.instruments) ASSERT_TRUE(in.rod.x.back().allFinite());
   EXPECT_NEAR(edge_angle(c, s_primary), rest_angle, 0.02 * rest_angle) << "recovers its curve";
   EXPECT_NEAR(tip_offset(c), rest_offset, 0.03 * rest_offset) << "and its tip offset";
 }
@@ -214,8 +234,7 @@ TEST(Pair, JudkinsTipStraightensOverAStiffWireAndRecovers) {
 // A straight wire (0.2 mm radius) in a straight catheter (0.6 mm lumen radius) on the sheath
 // axis, no wall, no gravity, inserted `wire_depth` and `cath_depth`.
 struct StraightPair {
-  std::vector<Instrument> insts;
-  std::vector<Coupling> cps{1};
+  std::optional<test::Rig> rig;
   RodDef cd, wd;
   StraightPair(double wire_depth, double cath_depth) {
     cd.length = 0.1;
@@ -229,12 +248,26 @@ struct StraightPair {
     wd.outer_radius = 0.2e-3;
     wd.inner_radius = 0.0;
     wd.segments = 60;
-    insts.push_back(make_instrument(wd, Sheath{}, ContactMaterial{}, wire_depth));
-    insts.push_back(make_instrument(cd, Sheath{}, ContactMaterial{}, cath_depth));
-    cps[0].inner = 0;
-    cps[0].outer = 1;
-    cps[0].mu = 0.1;
-    cps[0].contacts.reserve(insts[0].model.n);
+    std::vector<InstrumentModel> models;
+    models.push_back(make_instrument_model(wd, Sheath{}, ContactMaterial{}));
+    models.push_back(make_instrument_model(cd, Sheath{}, ContactMaterial{}));
+    std::vector<InstrumentState> states;
+    states.push_back(make_instrument_state(models[0], wire_depth));
+    states.push_back(make_instrument_state(models[1], cath_depth));
+    CouplingModel cp;
+    cp.inner = 0;
+    cp.outer = 1;
+    cp.mu = 0.1;
+    SolverSettings s;
+    s.rod.dt = 1e-3;
+    rig.emplace(std::move(models), std::move(states), s, std::vector<CouplingModel>{cp});
+  }
+  Inst wire() { return inst(*rig, 0); }
+  Inst catheter() { return inst(*rig, 1); }
+  bool sheathed(int node) const { return rig->ws.sheathed(0, node); }
+  std::span<const CoaxialContact> coupling() const { return rig->ws.coupling_contacts(0); }
+  void step(const SolverSettings& s, std::span<const DriveCommand> cmds) {
+    rig->step(nullptr, s, cmds);
   }
 };
 
@@ -244,8 +277,8 @@ struct StraightPair {
 // pulled back in) and left to the wall.
 TEST(Pair, AWireNodeBeyondTheCatheterTipIsOutside) {
   StraightPair p(0.0595, 0.06);
-  Instrument& w = p.insts[0];
-  const Instrument& c = p.insts[1];
+  const Inst w = p.wire();
+  const Inst c = p.catheter();
   const int tip = w.model.n - 1;
   const Vec3 axis = c.state.x[c.model.n - 1] - c.state.x[c.model.n - 2];
   // Inside by arc length (0.5 mm short of the catheter's tip), placed 1 mm beyond the tip plane
@@ -254,10 +287,10 @@ TEST(Pair, AWireNodeBeyondTheCatheterTipIsOutside) {
   SolverSettings s;
   s.rod.dt = 1e-3;
   const DriveCommand cmds[2] = {};
-  step_instruments(p.insts, p.cps, nullptr, s, cmds);
-  EXPECT_FALSE(w.sheathed[tip]) << "beyond the tip: the wall's";
-  EXPECT_TRUE(w.sheathed[tip - 1]) << "its neighbour inside";
-  for (const CoaxialContact& cc : p.cps[0].contacts) EXPECT_NE(cc.node, tip);
+  p.step(s, cmds);
+  EXPECT_FALSE(p.sheathed(tip)) << "beyond the tip: the wall's";
+  EXPECT_TRUE(p.sheathed(tip - 1)) << "its neighbour inside";
+  for (const CoaxialContact& cc : p.coupling()) EXPECT_NE(cc.node, tip);
 }
 
 // A catheter bunched up into a loop near the access (physics.md 7: in the default run, once,
@@ -268,7 +301,7 @@ TEST(Pair, AWireNodeBeyondTheCatheterTipIsOutside) {
 // outside the lumen (it would be dragged across to the loop).
 TEST(Pair, AWireNodeIsPairedWithTheCatheterItLiesInWhereTheCatheterLoops) {
   StraightPair p(0.05, 0.08);
-  Instrument& c = p.insts[1];
+  const Inst c = p.catheter();
   const double loop_start = 0.01, loop_length = 0.02;
   const double radius = loop_length / (2.0 * std::numbers::pi);
   for (int i = c.drive.first_free; i < c.model.n; ++i) {
@@ -284,17 +317,16 @@ TEST(Pair, AWireNodeIsPairedWithTheCatheterItLiesInWhereTheCatheterLoops) {
   SolverSettings s;
   s.rod.dt = 1e-3;
   const DriveCommand cmds[2] = {};
-  step_instruments(p.insts, p.cps, nullptr, s, cmds);
+  p.step(s, cmds);
   int paired = 0;
-  for (const CoaxialContact& cc : p.cps[0].contacts) {
+  for (const CoaxialContact& cc : p.coupling()) {
     if (cc.a > 0.0) continue;
     ++paired;
     EXPECT_LE(cc.excess, 1e-9) << "wire node " << cc.node << " paired with catheter edge "
                                << cc.segment << ", " << cc.excess * 1e3 << " mm outside";
   }
   int inside = 0;
-  for (int i = p.insts[0].drive.first_free; i < p.insts[0].model.n; ++i)
-    inside += p.insts[0].sheathed[i];
+  for (int i = p.wire().drive.first_free; i < p.wire().model.n; ++i) inside += p.sheathed(i);
   EXPECT_GT(inside, 20) << "the wire is inside the catheter";
 }
 
@@ -303,7 +335,7 @@ namespace {
 // The wire of a StraightPair pushed in `past` beyond the catheter's inserted length yet bunched up
 // inside it: its inserted nodes on the axis, their depths scaled by `squeeze`.
 void squeeze_wire(StraightPair& p, double squeeze) {
-  Instrument& w = p.insts[0];
+  const Inst w = p.wire();
   for (int i = w.drive.first_free; i < w.model.n; ++i) {
     const double sigma = w.model.node_s[i] - (w.model.length - w.drive.depth);
     if (sigma > 0.0) w.state.x[i] = Vec3(0.0, 0.0, squeeze * sigma);
@@ -323,12 +355,12 @@ TEST(Pair, AWireNodePastTheCathetersLengthButInItsLumenIsHeld) {
   SolverSettings s;
   s.rod.dt = 1e-3;
   const DriveCommand cmds[2] = {};
-  step_instruments(p.insts, p.cps, nullptr, s, cmds);
-  const Instrument& w = p.insts[0];
+  p.step(s, cmds);
+  const Inst w = p.wire();
   for (int i = w.drive.first_free; i < w.model.n; ++i) {
     const double sigma = w.model.node_s[i] - (w.model.length - w.drive.depth);
     if (sigma > 1e-3) {
-      EXPECT_TRUE(w.sheathed[i]) << "node " << i << " at " << sigma * 1e3 << " mm";
+      EXPECT_TRUE(p.sheathed(i)) << "node " << i << " at " << sigma * 1e3 << " mm";
     }
   }
 }
@@ -350,14 +382,14 @@ TEST(Pair, TheRimContactOfAnEdgeEndingInsideTheLumenIsNotACut) {
     SolverSettings s;
     s.rod.dt = 1e-3;
     const DriveCommand cmds[2] = {};
-    step_instruments(p.insts, p.cps, nullptr, s, cmds);
-    for (int i = p.insts[0].drive.first_free; i + 1 < p.insts[0].model.n; ++i)
-      if (p.insts[0].sheathed[i] && !p.insts[0].sheathed[i + 1]) last = i;
+    p.step(s, cmds);
+    for (int i = p.wire().drive.first_free; i + 1 < p.wire().model.n; ++i)
+      if (p.sheathed(i) && !p.sheathed(i + 1)) last = i;
   }
   ASSERT_GT(last, 0);
   StraightPair p(0.09, 0.06);
   squeeze_wire(p, 0.058 / 0.09);
-  Instrument& w = p.insts[0];
+  const Inst w = p.wire();
   const double tip = 0.06, lumen = p.cd.inner_radius, r_w = p.wd.outer_radius;
   // Pull the squeezed wire back 1 mm from the tip plane, then x0 on the axis 1 mm behind the tip
   // plane and x1 as above; the nodes past x1 go straight on out of the mouth.
@@ -373,12 +405,12 @@ TEST(Pair, TheRimContactOfAnEdgeEndingInsideTheLumenIsNotACut) {
   SolverSettings s;
   s.rod.dt = 1e-3;
   const DriveCommand cmds[2] = {};
-  step_instruments(p.insts, p.cps, nullptr, s, cmds);
-  ASSERT_TRUE(w.sheathed[last]);
-  ASSERT_FALSE(w.sheathed[last + 1]);
+  p.step(s, cmds);
+  ASSERT_TRUE(p.sheathed(last));
+  ASSERT_FALSE(p.sheathed(last + 1));
   const double dist = (x1 - Vec3(lumen, 0.0, tip)).norm();
   int rims = 0;
-  for (const CoaxialContact& cc : p.cps[0].contacts) {
+  for (const CoaxialContact& cc : p.coupling()) {
     if (cc.a <= 0.0 || cc.node != last) continue;
     ++rims;
     EXPECT_NEAR(cc.excess, r_w - dist, 1e-9) << "in front of the rim, " << dist * 1e3 << " mm off";
@@ -396,8 +428,6 @@ TEST(Pair, TheRimContactOfAnEdgeEndingInsideTheLumenIsNotACut) {
 // friction the impulses carry along the axis (all of it before the fix-up was taken out).
 TEST(Pair, PuttingAWireNodeBackInTheLumenIsNotFelt) {
   StraightPair p(0.05, 0.06);
-  std::vector<Instrument>& insts = p.insts;
-  std::vector<Coupling>& cps = p.cps;
   const RodDef& cd = p.cd;
   const RodDef& wd = p.wd;
   SolverSettings s;
@@ -405,10 +435,11 @@ TEST(Pair, PuttingAWireNodeBackInTheLumenIsNotFelt) {
   s.rod.drag = 20.0;
   using M = DriveCommand::Mode;
   const DriveCommand cmds[] = {{M::kVelocity, 0.02, 0.0}, {M::kVelocity, 0.0, 0.0}};
-  for (int k = 0; k < 20; ++k) step_instruments(insts, cps, nullptr, s, cmds);
-  for (const Instrument& in : insts) EXPECT_LT(std::abs(in.drive.axial_force), 1e-9);
+  for (int k = 0; k < 20; ++k) p.step(s, cmds);
+  for (const InstrumentState& in : p.rig->state.instruments)
+    EXPECT_LT(std::abs(in.drive.axial_force), 1e-9);
   // Nodes well inside both (from 30 mm in), moved radially 0.3 mm beyond the clearance (0.4 mm).
-  Instrument& w = insts[0];
+  const Inst w = p.wire();
   int node = -1;
   for (int i = w.drive.first_free; i < w.model.n; ++i) {
     if (w.model.node_s[i] - (w.model.length - w.drive.depth) > 0.03) {
@@ -419,13 +450,13 @@ TEST(Pair, PuttingAWireNodeBackInTheLumenIsNotFelt) {
   ASSERT_GE(node, 0);
   constexpr int kMoved = 12;  // a stretch of nodes, so that bending alone cannot bring it back
   for (int i = node; i < node + kMoved; ++i) w.state.x[i].x() += 0.7e-3;
-  step_instruments(insts, cps, nullptr, s, cmds);
-  ASSERT_GE(cps[0].contacts.size(), kMoved - 2u) << "the moved nodes are held";
+  p.step(s, cmds);
+  ASSERT_GE(p.coupling().size(), kMoved - 2u) << "the moved nodes are held";
   double fix_up = 0.0;
-  for (const CoaxialContact& c : cps[0].contacts) fix_up += c.lambda_n;
+  for (const CoaxialContact& c : p.coupling()) fix_up += c.lambda_n;
   EXPECT_GT(fix_up, 0.0) << "the coupling put the nodes back";
   const double clearance = cd.inner_radius - wd.outer_radius;
-  const Instrument& c = insts[1];
+  const Inst c = p.catheter();
   for (int i = node; i < node + kMoved; ++i) {
     double d = 1e9;
     for (int j = 0; j < c.model.m; ++j)
@@ -436,9 +467,9 @@ TEST(Pair, PuttingAWireNodeBackInTheLumenIsNotFelt) {
   // of which the hands felt before the fix-up was taken out (39 mN). What is left (4.8 mN) is the
   // friction of the normal impulses beyond the fix-up.
   double carried = 0.0;
-  for (const CoaxialContact& cc : cps[0].contacts) carried += std::abs(cc.lambda_t.z()) / s.rod.dt;
+  for (const CoaxialContact& cc : p.coupling()) carried += std::abs(cc.lambda_t.z()) / s.rod.dt;
   EXPECT_GT(carried, 0.01);
-  for (const Instrument& in : insts) {
+  for (const InstrumentState& in : p.rig->state.instruments) {
     EXPECT_LT(std::abs(in.drive.axial_force), 0.25 * carried) << "a fix-up is not a load";
   }
 }
@@ -449,9 +480,7 @@ namespace {
 // lumen friction, the scenario's step and quasi-static mass scaling; then the wire is pulled back
 // at 20 mm/s until its tip is 15 mm inside: the J straightens through the catheter's tip.
 struct JPullIn {
-  std::vector<Instrument> insts;
-  std::vector<Coupling> cps{1};
-  SolverSettings s;
+  std::optional<test::Rig> rig;
   static constexpr double kDt = 5e-4;
   static constexpr double kCatheterDepth = 0.15;
   static constexpr double kWireDepth = 0.18;
@@ -465,26 +494,29 @@ struct JPullIn {
     Discretisation disc;
     disc.tip_segment = 2e-3;
     disc.max_nodes = 81;
+    std::vector<InstrumentModel> models;
+    std::vector<InstrumentState> states;
     for (const InstrumentSpec* sp : {&wsp, &cs}) {
       RodDef def = to_rod_def(*sp, disc);
       def.base = BoundaryKind::kFree;
       def.tip = BoundaryKind::kFree;
-      Instrument in = make_instrument(def, Sheath{}, ContactMaterial{},
-                                      sp == &wsp ? kWireDepth : kCatheterDepth);
-      scale_for_time_step(in.model, kDt, kQuasiStaticKpRatio);
-      insts.push_back(std::move(in));
+      models.push_back(make_instrument_model(def, Sheath{}, ContactMaterial{}));
+      scale_for_time_step(models.back().rods[0], kDt, kQuasiStaticKpRatio);
+      states.push_back(
+          make_instrument_state(models.back(), sp == &wsp ? kWireDepth : kCatheterDepth));
     }
-    cps[0].mu = 0.0;
-    cps[0].rim = rim;
-    cps[0].contacts.reserve(insts[0].model.n);
+    CouplingModel cp;
+    cp.mu = 0.0;
+    cp.rim = rim;
+    SolverSettings s;
     s.rod.dt = kDt;
     set_quasi_static_damping(s.rod);
     s.collisions = false;
+    rig.emplace(std::move(models), std::move(states), s, std::vector<CouplingModel>{cp});
   }
-  void step(const DriveCommand (&cmds)[2]) { step_instruments(insts, cps, nullptr, s, cmds); }
+  void step(const DriveCommand (&cmds)[2]) { rig->step(nullptr, cmds); }
   double energy() const {
-    return elastic_energy(insts[0].model, insts[0].state) +
-           elastic_energy(insts[1].model, insts[1].state);
+    return elastic_energy(rig->md(0), rig->rod(0)) + elastic_energy(rig->md(1), rig->rod(1));
   }
 };
 
@@ -512,7 +544,7 @@ TEST(Pair, AJTipPulledIntoItsCatheterIsFeltSmoothlyAndDoesTheWork) {
   const int steps = static_cast<int>(0.045 / kSpeed / JPullIn::kDt);
   for (int k = 0; k < steps; ++k) {
     p.step(pull);
-    const double fk = p.insts[0].drive.axial_force_raw;
+    const double fk = p.rig->drive(0).axial_force_raw;
     ASSERT_TRUE(std::isfinite(fk));
     f.push_back(fk);
     work -= fk * kSpeed * JPullIn::kDt;

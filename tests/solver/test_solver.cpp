@@ -6,8 +6,10 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <optional>
 #include <string>
 
+#include "solver_rig.h"
 #include "test_rods.h"
 #include "vcsim/experiments.h"
 #include "vcsim/solver.h"
@@ -52,12 +54,12 @@ struct StraightTube {
 struct DeadEndScene {
   static constexpr double kDt = 1e-3;
   StraightTube tube{2.0e-3, 0.06, /*cap=*/true};
-  Instrument inst;
+  std::optional<test::Rig> rig;
   SolverSettings s;
   explicit DeadEndScene(double depth, double mass_factor = 1.0) {
     RodDef d = test_rod(0.1, 60);
     d.density = mass_factor * scaled_density(d, kDt);
-    inst = make_instrument(d, Sheath{}, ContactMaterial{0.0, 0.0}, depth);
+    rig.emplace(test::driven(d, Sheath{}, ContactMaterial{0.0, 0.0}, depth));
     s.rod.dt = kDt;
     s.rod.drag = 20.0;
   }
@@ -71,7 +73,7 @@ TEST(Solver, HardPushIntoADeadEndStaysInsideForTenSeconds) {
   const double dt = 1e-3;
   d.density = scaled_density(d, dt);
   ContactMaterial mat{0.1, 0.08};
-  Instrument inst = make_instrument(d, Sheath{}, mat, 0.05);
+  test::Rig inst = test::driven(d, Sheath{}, mat, 0.05);
   SolverSettings s;
   s.rod.dt = dt;
   // Blood damps the frames' spin as it damps the nodes: without it the crammed rod's twist,
@@ -83,10 +85,10 @@ TEST(Solver, HardPushIntoADeadEndStaysInsideForTenSeconds) {
   double worst = 0.0;
   StaticWall wall = tube.wall();
   for (int k = 0; k < 10000; ++k) {
-    instrument_step(inst, &wall, s, push);
+    inst.step(&wall, s, push);
     if (k % 50 != 0 && k < 9990) continue;
-    for (int i = inst.drive.first_free; i < inst.model.n; ++i) {
-      const Vec3& x = inst.state.x[i];
+    for (int i = inst.drive().first_free; i < inst.md().n; ++i) {
+      const Vec3& x = inst.rod().x[i];
       ASSERT_TRUE(x.allFinite()) << "node " << i << " at step " << k;
       const double radial = std::hypot(x.x(), x.y()) - tube.radius;
       const double beyond_cap = x.z() - tube.length;
@@ -97,7 +99,7 @@ TEST(Solver, HardPushIntoADeadEndStaysInsideForTenSeconds) {
   // It really was a hard push: the whole rod is crammed into the blind tube. (The hand force of
   // this mass-scaled rod is dominated by its inflated inertia; DriveFeelsTheDeadEnd checks the
   // quasi-static force.)
-  EXPECT_NEAR(inst.drive.depth, d.length - inst.model.rest_length[0], 1e-9);
+  EXPECT_NEAR(inst.drive().depth, d.length - inst.md().rest_length[0], 1e-9);
 }
 
 class Incline : public ::testing::TestWithParam<double> {};
@@ -117,9 +119,9 @@ TEST_P(Incline, SlidesOnlyBeyondTheFrictionAngle) {
   RodDef d = test_rod(0.02, 10);
   d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), Vec3::UnitY());
   d.base_position = Vec3(0, -0.01, d.outer_radius);
-  Instrument inst = make_free_instrument(d, ContactMaterial{mu, mu});
+  test::Rig inst = test::free_rod_rig(d, ContactMaterial{mu, mu});
   SolverSettings s;
-  s.rod.dt = estimate_stable_dt(inst.model, s.rod);
+  s.rod.dt = estimate_stable_dt(inst.md(), s.rod);
   s.rod.gravity = Vec3(g * std::sin(alpha), 0, -g * std::cos(alpha));
   const double t_end = 0.2;
   const int steps = static_cast<int>(t_end / s.rod.dt);
@@ -127,11 +129,11 @@ TEST_P(Incline, SlidesOnlyBeyondTheFrictionAngle) {
   double x0 = 0.0;
   StaticWall wall(plane, tree);
   for (int k = 0; k < steps; ++k) {
-    if (k == steps / 10) x0 = inst.state.x[5].x();
-    instrument_step(inst, &wall, s, DriveCommand{});
+    if (k == steps / 10) x0 = inst.rod().x[5].x();
+    inst.step(&wall, s, DriveCommand{});
   }
   const double t = t_end - (steps / 10) * s.rod.dt;
-  const double moved = inst.state.x[5].x() - x0;
+  const double moved = inst.rod().x[5].x() - x0;
   if (ratio < 1.0) {
     EXPECT_LT(std::abs(moved), 1e-6) << "stuck below the friction angle";
   } else {
@@ -139,25 +141,25 @@ TEST_P(Incline, SlidesOnlyBeyondTheFrictionAngle) {
     // Sliding from (nearly) rest at the measurement start: x = v0 t + a t^2 / 2 with v0 from
     // the first tenth; compare the mean acceleration of the sliding phase.
     EXPECT_GT(moved, 0.25 * a * t * t) << "must slide beyond the friction angle";
-    const double v_end = inst.state.v[5].x();
+    const double v_end = inst.rod().v[5].x();
     const double v_start = v_end - a * t;
     EXPECT_NEAR((v_end - v_start) / t, a, 0.05 * a);
     EXPECT_NEAR(moved, v_start * t + 0.5 * a * t * t, 0.05 * moved);
   }
   // Never sinks into the plane.
-  for (const auto& x : inst.state.x) EXPECT_GT(x.z(), 0.9 * d.outer_radius);
+  for (const auto& x : inst.rod().x) EXPECT_GT(x.z(), 0.9 * d.outer_radius);
 }
 INSTANTIATE_TEST_SUITE_P(TanOverMu, Incline, ::testing::Values(0.8, 1.25, 2.0));
 
 TEST(Solver, DriveFeelsTheDeadEnd) {
   DeadEndScene sc(0.03);
-  Instrument& inst = sc.inst;
+  test::Rig& inst = *sc.rig;
   const SolverSettings& s = sc.s;
   StaticWall wall = sc.tube.wall();
   auto push_to = [&](double depth, int settle) {
     DriveCommand c{DriveCommand::Mode::kPosition, depth, 0.0};
-    for (int k = 0; k < settle; ++k) instrument_step(inst, &wall, s, c);
-    return inst.drive.axial_force;
+    for (int k = 0; k < settle; ++k) inst.step(&wall, s, c);
+    return inst.drive().axial_force;
   };
   const double free_force = push_to(0.05, 800);  // tip 10 mm short of the end
   const double f1 = push_to(0.0605, 800);        // 0.5 mm past contact
@@ -172,7 +174,7 @@ TEST(Solver, TurningAtTheHandTurnsTheTip) {
   RodDef d = test_rod(0.1, 40);
   const double dt = 1e-3;
   d.density = scaled_density(d, dt);
-  Instrument inst = make_instrument(d, Sheath{}, ContactMaterial{0.0, 0.0}, 0.06);
+  test::Rig inst = test::driven(d, Sheath{}, ContactMaterial{0.0, 0.0}, 0.06);
   SolverSettings s;
   s.rod.dt = dt;
   s.rod.drag = 20.0;
@@ -180,10 +182,10 @@ TEST(Solver, TurningAtTheHandTurnsTheTip) {
   const double turn = std::numbers::pi / 2;
   DriveCommand c{DriveCommand::Mode::kPosition, 0.06, turn};
   StaticWall wall = tube.wall();
-  for (int k = 0; k < 3000; ++k) instrument_step(inst, &wall, s, c);
-  const Vec3 d1 = inst.state.q.back() * Vec3::UnitX();
+  for (int k = 0; k < 3000; ++k) inst.step(&wall, s, c);
+  const Vec3 d1 = inst.rod().q.back() * Vec3::UnitX();
   EXPECT_NEAR(std::atan2(d1.y(), d1.x()), turn, 0.02) << "the tip follows the hand's roll";
-  EXPECT_NEAR(inst.drive.torque, 0.0, 1e-6) << "no friction: nothing resists once turned";
+  EXPECT_NEAR(inst.drive().torque, 0.0, 1e-6) << "no friction: nothing resists once turned";
 }
 
 // The introducer sheath (physics.md 6.2): a 100 mm rod inserted 60 mm, no vessel wall, loaded
@@ -198,7 +200,7 @@ TEST(Solver, TheSheathHoldsWhatPassesThroughIt) {
     Sheath sh;
     sh.length = sheath_length;
     sh.inner_radius = d.outer_radius + 0.1e-3;
-    Instrument inst = make_instrument(d, sh, ContactMaterial{0.0, 0.0}, 0.06);
+    test::Rig inst = test::driven(d, sh, ContactMaterial{0.0, 0.0}, 0.06);
     SolverSettings s;
     s.rod.dt = dt;
     s.rod.drag = 20.0;
@@ -207,16 +209,16 @@ TEST(Solver, TheSheathHoldsWhatPassesThroughIt) {
     const DriveCommand c{DriveCommand::Mode::kPosition, 0.06, 0.0};
     double worst_inside = 0.0;
     for (int k = 0; k < 3000; ++k) {
-      instrument_step(inst, nullptr, s, c);
-      for (int i = inst.drive.first_free; i < inst.model.n; ++i)
-        if (inst.model.node_s[i] - (inst.model.length - inst.drive.depth) <= sheath_length)
+      inst.step(nullptr, s, c);
+      for (int i = inst.drive().first_free; i < inst.md().n; ++i)
+        if (inst.md().node_s[i] - (inst.md().length - inst.drive().depth) <= sheath_length)
           worst_inside =
-              std::max(worst_inside, std::hypot(inst.state.x[i].x(), inst.state.x[i].y()));
+              std::max(worst_inside, std::hypot(inst.rod().x[i].x(), inst.rod().x[i].y()));
     }
-    const double s_node = inst.model.length - inst.drive.depth + s_in;
+    const double s_node = inst.md().length - inst.drive().depth + s_in;
     int i = 0;
-    while (inst.model.node_s[i] < s_node) ++i;
-    return std::pair(worst_inside, std::hypot(inst.state.x[i].x(), inst.state.x[i].y()));
+    while (inst.md().node_s[i] < s_node) ++i;
+    return std::pair(worst_inside, std::hypot(inst.rod().x[i].x(), inst.rod().x[i].y()));
   };
   const auto [inside, beyond] = sag_at(0.03, 0.055);
   const double play = 0.1e-3;
@@ -227,10 +229,10 @@ TEST(Solver, TheSheathHoldsWhatPassesThroughIt) {
 
 TEST(Solver, BadInstrumentInputIsAnInputError) {
   RodDef d = test_rod(0.1, 20);
-  EXPECT_THROW(make_instrument(d, Sheath{}, ContactMaterial{0.1, 0.2}, 0.05), InputError);
-  EXPECT_THROW(make_instrument(d, Sheath{}, ContactMaterial{}, 0.2), InputError);
+  EXPECT_THROW(test::driven(d, Sheath{}, ContactMaterial{0.1, 0.2}, 0.05), InputError);
+  EXPECT_THROW(test::driven(d, Sheath{}, ContactMaterial{}, 0.2), InputError);
   d.base = BoundaryKind::kClamped;
-  EXPECT_THROW(make_instrument(d, Sheath{}, ContactMaterial{}, 0.05), InputError);
+  EXPECT_THROW(test::driven(d, Sheath{}, ContactMaterial{}, 0.05), InputError);
   // The linearly implicit rod step is refused where instruments collide (physics.md 5.5).
   SolverSettings s;
   s.rod.integrator = Integrator::kLinearlyImplicit;
@@ -272,16 +274,16 @@ TEST(Compression, PaperTargets) {
 TEST(Solver, HandForceDoesNotScaleWithTheRodsMass) {
   for (double mass_factor : {1.0, 4.0}) {
     DeadEndScene sc(0.03, mass_factor);
-    Instrument& inst = sc.inst;
+    test::Rig& inst = *sc.rig;
     const SolverSettings& s = sc.s;
     StaticWall wall = sc.tube.wall();
     const DriveCommand push{DriveCommand::Mode::kVelocity, 0.02, 0.0};  // 20 mm/s for 1 s
     double worst = 0.0;
     for (int k = 0; k < 1000; ++k) {
-      instrument_step(inst, &wall, s, push);
-      worst = std::max(worst, std::abs(inst.drive.axial_force));
+      inst.step(&wall, s, push);
+      worst = std::max(worst, std::abs(inst.drive().axial_force));
     }
-    EXPECT_NEAR(inst.drive.depth, 0.05, 1e-9);
+    EXPECT_NEAR(inst.drive().depth, 0.05, 1e-9);
     EXPECT_LT(worst, 1e-9) << "free insertion: no contact, no load (mass x " << mass_factor << ")";
   }
 }
@@ -289,7 +291,7 @@ TEST(Solver, HandForceDoesNotScaleWithTheRodsMass) {
 // The optional haptic low-pass: a first-order filter of the raw force with the set cutoff.
 TEST(Solver, HandForceLowPassIsFirstOrder) {
   DeadEndScene sc(0.05);
-  Instrument& inst = sc.inst;
+  test::Rig& inst = *sc.rig;
   SolverSettings& s = sc.s;
   s.feedback_cutoff_hz = 30.0;
   StaticWall wall = sc.tube.wall();
@@ -298,8 +300,8 @@ TEST(Solver, HandForceLowPassIsFirstOrder) {
   const DriveCommand c{DriveCommand::Mode::kPosition, 0.0605, 0.0};
   double prev = 0.0, worst = 0.0, range = 0.0;
   for (int k = 0; k < 300; ++k) {
-    instrument_step(inst, &wall, s, c);
-    const DriveState& dr = inst.drive;
+    inst.step(&wall, s, c);
+    const DriveState& dr = inst.drive();
     if (k > 0)
       worst = std::max(worst, std::abs(dr.axial_force - (prev + g * (dr.axial_force_raw - prev))));
     range = std::max(range, std::abs(dr.axial_force_raw));
@@ -323,14 +325,14 @@ TEST(Solver, ParallelWallQueriesGiveTheSameSteps) {
   s.rod.drag = 20.0;
   const DriveCommand push{DriveCommand::Mode::kVelocity, 0.05, 2.0};
   auto run = [&](int parallel_min, int& max_queries) {
-    Instrument inst = make_instrument(d, Sheath{}, ContactMaterial{0.1, 0.08}, 0.03);
+    test::Rig inst = test::driven(d, Sheath{}, ContactMaterial{0.1, 0.08}, 0.03);
     StaticWall wall(tube.mesh, tube.tree, parallel_min);
     StepProfile prof;
     for (int k = 0; k < 800; ++k) {
-      instrument_step(inst, &wall, s, push, &prof);
+      inst.step(&wall, s, push, &prof);
       max_queries = std::max(max_queries, prof.num_queries);
     }
-    return inst.state.hash();
+    return inst.rod().hash();
   };
   int serial_queries = 0, parallel_queries = 0;
   const std::uint64_t serial = run(0, serial_queries);

@@ -9,6 +9,8 @@
 
 #include "vcsim/solver.h"
 
+#include "solver_rig.h"
+
 #include "counting_new.h"
 
 using vcsim::test::g_allocations;
@@ -32,8 +34,7 @@ TEST(SolverNoAlloc, WarmInstrumentStepWithContactsAllocatesNothing) {
   d.outer_radius = 0.45e-3;
   d.base = BoundaryKind::kFree;
   d.density = 1e6;
-  Instrument inst =
-      make_instrument(d, Sheath{}, ContactMaterial{}, 0.015);  // tip 5 mm before the bend
+  test::Rig inst = test::driven(d, Sheath{}, ContactMaterial{}, 0.015);  // tip 5 mm before the bend
   SolverSettings s;
   s.rod.dt = 2e-4;
   s.rod.drag = 20;
@@ -43,14 +44,14 @@ TEST(SolverNoAlloc, WarmInstrumentStepWithContactsAllocatesNothing) {
   // Warm up until a batch of queries has gone parallel (the thread pool's first use allocates).
   int warm_queries = 0;
   for (int k = 0; k < 300 || (warm_queries < 2 * StaticWall::kParallelChunk && k < 3000); ++k) {
-    instrument_step(inst, &wall, s, c, &prof);
+    inst.step(&wall, s, c, &prof);
     warm_queries = std::max(warm_queries, prof.num_queries);
   }
   ASSERT_GE(warm_queries, 2 * StaticWall::kParallelChunk);
   const long before = g_allocations.load();
   int contacts = 0, queries = 0;
   for (int k = 0; k < 300; ++k) {
-    instrument_step(inst, &wall, s, c, &prof);
+    inst.step(&wall, s, c, &prof);
     contacts = std::max(contacts, prof.num_contacts);
     queries = std::max(queries, prof.num_queries);
   }
@@ -84,27 +85,31 @@ TEST(SolverNoAlloc, WarmPairStepWithRimAndSheathAllocatesNothing) {
   sh.length = 0.02;
   sh.inner_radius = 1.1e-3;
   const double dt = 2e-4;
-  std::vector<Instrument> insts;
-  insts.push_back(make_instrument(wd, sh, ContactMaterial{}, 0.068));  // 8 mm out of the catheter
-  insts.push_back(make_instrument(cd, sh, ContactMaterial{}, 0.06));
-  for (Instrument& in : insts) scale_for_time_step(in.model, dt, kQuasiStaticKpRatio);
-  std::vector<Coupling> cps(1);
-  cps[0].contacts.reserve(insts[0].model.n);
+  std::vector<InstrumentModel> models;
+  models.push_back(make_instrument_model(wd, sh, ContactMaterial{}));
+  models.push_back(make_instrument_model(cd, sh, ContactMaterial{}));
+  for (InstrumentModel& im : models) scale_for_time_step(im.rods[0], dt, kQuasiStaticKpRatio);
+  std::vector<InstrumentState> states;
+  states.push_back(make_instrument_state(models[0], 0.068));  // 8 mm out of the catheter
+  states.push_back(make_instrument_state(models[1], 0.06));
   SolverSettings s;
   s.rod.dt = dt;
   set_quasi_static_damping(s.rod);
   s.rod.gravity = Vec3(1.0, 0.0, 0.0);  // sideways: the shafts lean on the sheath's lumen
   s.collisions = false;
+  test::Rig insts(std::move(models), std::move(states), s, {CouplingModel{}});
+  insts.model.couplings[0].inner = 0;
+  insts.model.couplings[0].outer = 1;
   using M = DriveCommand::Mode;
   const DriveCommand hold[] = {{M::kPosition, 0.068, 0.0}, {M::kPosition, 0.06, 0.0}};
-  for (int k = 0; k < 500; ++k) step_instruments(insts, cps, nullptr, s, hold);
+  for (int k = 0; k < 500; ++k) insts.step(nullptr, hold);
   const DriveCommand pull[] = {{M::kVelocity, -0.02, 0.0}, {M::kVelocity, 0.0, 0.0}};
   const long before = g_allocations.load();
   int rims = 0, sheath = 0;
   for (int k = 0; k < 300; ++k) {
-    step_instruments(insts, cps, nullptr, s, pull);
-    for (const CoaxialContact& c : cps[0].contacts) rims += c.a > 0.0 ? 1 : 0;
-    sheath += static_cast<int>(insts[1].contacts.size());
+    insts.step(nullptr, pull);
+    for (const CoaxialContact& c : insts.ws.coupling_contacts(0)) rims += c.a > 0.0 ? 1 : 0;
+    sheath += static_cast<int>(insts.contacts(1).size());
   }
   EXPECT_EQ(g_allocations.load() - before, 0);
   EXPECT_GT(rims, 0) << "the test must exercise the rim";

@@ -1,0 +1,200 @@
+// A run's report: metrics.json (docs/scenarios.md), the summary printed at the end of `vcsim
+// run`, and the per-step force log.
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <ostream>
+
+#include "vcsim/sim.h"
+
+namespace vcsim {
+
+namespace {
+
+nlohmann::json shape_json(const RodModel& md, const InstrumentState& in) {
+  nlohmann::json pts = nlohmann::json::array();
+  for (int i = std::max(0, in.drive.first_free - 1); i < md.n; ++i) {
+    const Vec3& x = in.rod.x[i];
+    pts.push_back(
+        {std::round(x.x() * 1e4) / 10, std::round(x.y() * 1e4) / 10, std::round(x.z() * 1e4) / 10});
+  }
+  return pts;
+}
+
+double real_time_factor(const Simulator& sim, const RunReport& r) {
+  return r.wall_time > 0 ? sim.time() / r.wall_time : 0.0;
+}
+
+double physics_real_time_factor(const Simulator& sim) {
+  const double w = sim.profile().wall_time;
+  return w > 0 ? sim.time() / w : 0.0;
+}
+
+}  // namespace
+
+RunOutcome run_outcome(const Simulator& sim, const RunReport& r) {
+  const Scenario& sc = sim.scenario();
+  const SimMetrics& m = sim.metrics();
+  std::vector<std::string> missed;
+  for (std::size_t k = 0; k < m.landmarks.size(); ++k)
+    if (!m.landmarks[k].reached) missed.push_back(sc.landmarks[k].name);
+  RunOutcome o;
+  o.success = missed.empty();
+  o.text = "all landmarks reached";
+  if (!o.success) {
+    o.text = "not reached:";
+    for (const auto& s : missed) o.text += " '" + s + "'";
+    o.text +=
+        sim.time() >= r.end_time - 1e-9 ? " (time limit " + std::to_string(r.end_time) + " s)" : "";
+    if (r.autopilot && r.autopilot->failed()) o.text += " (" + r.autopilot->status() + ")";
+  }
+  if (r.loop.stopped)
+    o.text += " (stopped by a signal at t = " + std::to_string(sim.time()) + " s)";
+  return o;
+}
+
+void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
+                       const RunReport& r) {
+  const Scenario& sc = sim.scenario();
+  const SimMetrics& m = sim.metrics();
+  const double frame_dt = 1.0 / sc.fluoro.fps;
+  nlohmann::json j;
+  j["scenario"] = sc.name;
+  j["scenario_file"] = r.scenario_file;
+  j["dt_s"] = sc.dt;
+  j["sim_time_s"] = sim.time();
+  j["wall_time_s"] = r.wall_time;
+  j["setup_time_s"] = r.setup_time;
+  j["physics_time_s"] = sim.profile().wall_time;
+  j["render_time_s"] = r.render_time;
+  j["real_time_factor"] = real_time_factor(sim, r);
+  j["physics_real_time_factor"] = physics_real_time_factor(sim);
+  j["steps"] = m.steps;
+  j["rollbacks"] = m.rollbacks;
+  j["resplit_steps"] = m.resplit_steps;
+  j["frames"] = r.frames;
+  j["fluoroscopy_time_s"] = r.frames * frame_dt;
+  j["contrast_volume_ml"] = sim.state().contrast.volume * 1e6;
+  j["video"] = r.video;
+  char hash[24];
+  std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(sim.state().hash()));
+  j["state_hash"] = hash;  // hex: JSON readers keep only 53 bits of a number
+  nlohmann::json insts = nlohmann::json::array();
+  for (int i = 0; i < sim.num_instruments(); ++i) {
+    const InstrumentState& in = sim.instrument(i);
+    const TreeHit h = sim.tip_location(i);
+    insts.push_back({{"name", sc.instruments[i].name},
+                     {"catalogue", sc.instruments[i].catalogue},
+                     {"nodes", sim.rod_model(i).n},
+                     {"inserted_mm", in.drive.depth * 1e3},
+                     {"tip_path_mm", m.tip_path[i] * 1e3},
+                     {"peak_wall_force_n", m.peak_wall_force[i]},
+                     {"peak_axial_force_n", m.peak_axial_force[i]},
+                     {"peak_axial_jump_n", m.peak_axial_jump[i]},
+                     {"peak_torque_nmm", m.peak_torque[i] * 1e3},
+                     {"tip_segment", in.drive.depth > 0 ? sim.tree().segments[h.loc.segment].name
+                                                        : std::string("outside")},
+                     {"tip_distance_mm", h.loc.distance * 1e3},
+                     {"final_shape_mm", shape_json(sim.rod_model(i), in)}});
+  }
+  j["instruments"] = insts;
+  nlohmann::json lms = nlohmann::json::array();
+  for (std::size_t k = 0; k < m.landmarks.size(); ++k) {
+    const LandmarkRecord& l = m.landmarks[k];
+    lms.push_back({{"name", sc.landmarks[k].name},
+                   {"instrument", sc.landmarks[k].instrument},
+                   {"reached", l.reached},
+                   {"time_s", l.reached ? nlohmann::json(l.time) : nlohmann::json(nullptr)}});
+  }
+  j["landmarks"] = lms;
+  nlohmann::json input = {{"type", r.input_type}, {"realtime", r.realtime}};
+  if (r.input_type == "igtl") {
+    input["address"] = r.device_address;
+    input["port"] = r.device_port;
+    input["connections"] = r.device.connections;
+    input["disconnections"] = r.device.disconnections;
+    input["messages_accepted"] = r.device.messages_accepted;
+    input["messages_dropped"] = r.device.messages_dropped;
+    input["feedback_sent"] = r.device.feedback_sent;
+  }
+  if (r.realtime) {
+    input["late_steps"] = r.loop.late_steps;
+    input["max_lag_ms"] = r.loop.max_lag * 1e3;
+    input["resyncs"] = r.loop.resyncs;
+  }
+  j["input"] = input;
+  j["stopped_by_signal"] = r.loop.stopped;
+  if (r.autopilot)
+    j["autopilot"] = {{"finished", r.autopilot->finished() && !r.autopilot->failed()},
+                      {"failed", r.autopilot->failed()},
+                      {"status", r.autopilot->status()},
+                      {"retries", r.autopilot->retries()}};
+  const RunOutcome o = run_outcome(sim, r);
+  j["outcome"] = o.text;
+  j["success"] = o.success;
+  std::ofstream out(file);
+  out << j.dump(2) << "\n";
+  if (!out) throw InputError(file.string(), "file", "expected a writable metrics file");
+}
+
+void print_run_summary(std::ostream& out, const Simulator& sim, const RunReport& r,
+                       const std::filesystem::path& frames_dir,
+                       const std::filesystem::path& metrics) {
+  const Scenario& sc = sim.scenario();
+  const SimMetrics& m = sim.metrics();
+  out << "run: " << sc.name << ": " << run_outcome(sim, r).text << "\n";
+  for (std::size_t k = 0; k < m.landmarks.size(); ++k) {
+    const LandmarkRecord& l = m.landmarks[k];
+    out << "  " << (l.reached ? "reached " : "MISSED  ") << sc.landmarks[k].name << " ("
+        << sc.landmarks[k].instrument << ")"
+        << (l.reached ? " at " + std::to_string(l.time) + " s" : "") << "\n";
+  }
+  out << "  simulated " << sim.time() << " s in " << r.wall_time << " s wall ("
+      << real_time_factor(sim, r) << "x real time; physics alone " << physics_real_time_factor(sim)
+      << "x)\n"
+      << "  frames:  " << frames_dir.string() << " (" << r.frames << " PNG at " << sc.fluoro.fps
+      << " fps)\n";
+  if (!r.video.empty()) out << "  video:   " << r.video << "\n";
+  if (r.input_type == "igtl")
+    out << "  device:  OpenIGTLink on " << r.device_address << ":" << r.device_port << ", "
+        << r.device.connections << " connection(s), " << r.device.messages_accepted
+        << " messages accepted (" << r.device.messages_dropped << " dropped), "
+        << r.device.feedback_sent << " force messages sent\n";
+  if (r.realtime)
+    out << "  pacing:  real time, " << r.loop.late_steps << " late steps (worst lag "
+        << r.loop.max_lag * 1e3 << " ms, " << r.loop.resyncs << " resyncs)\n";
+  out << "  metrics: " << metrics.string() << "\n";
+}
+
+struct ForceLog::File {
+  std::ofstream out;
+};
+
+ForceLog::ForceLog(const std::filesystem::path& file, const SimModel& model)
+    : f_(std::make_unique<File>()) {
+  f_->out.open(file);
+  if (!f_->out)
+    throw InputError("run", "--force-log", "expected a writable file, got '" + file.string() + "'");
+  f_->out << "time_s";
+  for (const ScenarioInstrument& si : model.scenario.instruments)
+    f_->out << ',' << si.name << "_depth_mm," << si.name << "_force_n," << si.name << "_torque_nmm";
+  f_->out << '\n';
+}
+
+ForceLog::~ForceLog() = default;
+
+void ForceLog::after_step(const Simulator& sim) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.4f", sim.time());
+  f_->out << buf;
+  for (int i = 0; i < sim.num_instruments(); ++i) {
+    const DriveState& dr = sim.instrument(i).drive;
+    std::snprintf(buf, sizeof buf, ",%.3f,%.6g,%.6g", dr.depth * 1e3, dr.axial_force,
+                  dr.torque * 1e3);
+    f_->out << buf;
+  }
+  f_->out << '\n';
+}
+
+}  // namespace vcsim

@@ -1,0 +1,91 @@
+// The solver's scratch (SolverWorkspace's insides) and the view of one instrument that a fine
+// step works on. Internal to src/solver.
+#pragma once
+
+#include <array>
+#include <span>
+#include <vector>
+
+#include "vcsim/solver.h"
+
+namespace vcsim::internal {
+
+// One instrument's scratch, sized once for its node count.
+struct InstrumentScratch {
+  RodWorkspace rod;
+  // Contact detection: the nodes queried this step, where, how wide, and what was found.
+  std::vector<SphereContact> hits;       // (n)
+  std::vector<int> query_nodes;          // (n)
+  std::vector<Vec3> query_points;        // (n)
+  std::vector<double> query_radii;       // (n)
+  std::vector<LeafCache*> query_caches;  // (n) the queried nodes' caches
+  // Wall leaves near each node (static walls). A pure cache of the static tree: a query gives the
+  // same answer with or without it, so a restored state need not carry it.
+  std::vector<LeafCache> leaf_cache;    // (n)
+  std::vector<NodeContact> contacts;    // active contacts, capacity n
+  std::vector<unsigned char> sheathed;  // (n) 1: inside another instrument's lumen this step
+  std::vector<Vec3> coupling_impulse;   // (n) coaxial coupling impulses on each node this step
+  // Hand-force scratch (physics.md 6.1): reactions of inner instruments on this one's nodes, and
+  // each node's wall contact and coupling contact this step (-1: none).
+  std::vector<Vec3> felt_load;       // (n)
+  std::vector<int> wall_contact_of;  // (n)
+  std::vector<int> coupling_of;      // (n)
+  std::vector<int> rim_of;           // (n) the rim contact of the edge from node i (-1: none)
+  std::array<double, 3> stage_us{};  // profile scratch: this instrument's stage times (us)
+
+  void resize(const RodModel& md);
+};
+
+struct CouplingScratch {
+  std::vector<CoaxialContact> contacts;  // capacity = inner nodes
+  double clearance = 0.0;                // m, set by each fine step
+};
+
+// One instrument as a fine step sees it: its model, the rod of the step's split, its state and
+// its scratch.
+struct Inst {
+  const InstrumentModel* im = nullptr;
+  const RodModel* md = nullptr;
+  InstrumentState* st = nullptr;
+  InstrumentScratch* w = nullptr;
+
+  const RodModel& model() const { return *md; }
+  RodState& rod() const { return st->rod; }
+  DriveState& drive() const { return st->drive; }
+  RodWorkspace& ws() const { return w->rod; }
+  bool parked() const { return st->parked; }
+  bool driven() const { return im->driven; }
+};
+
+// One coupling as a fine step sees it.
+struct Pair {
+  const CouplingModel* cm = nullptr;
+  CouplingScratch* s = nullptr;
+};
+
+struct SolverScratch {
+  std::vector<InstrumentScratch> inst;          // (instrument)
+  std::vector<CouplingScratch> coupling;        // (coupling)
+  std::vector<Inst> bound;                      // (instrument) rebound for each fine step's split
+  std::vector<Pair> pairs;                      // (coupling)
+  std::vector<DriveCommand> sub_drive;          // (instrument) the hand's command for one fine step
+  std::vector<double> fine_force, fine_torque;  // (instrument) hand force summed over them
+  // The step's start, for a step taken again split finer or undone.
+  std::vector<RodState> backup_rod;      // (instrument)
+  std::vector<DriveState> backup_drive;  // (instrument)
+};
+
+// One fine step of every instrument that is not parked, with settings.rod.dt, against the wall
+// as set (the stages of docs/architecture.md). `profile`, if given, receives this fine step's
+// stage times.
+void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWall* wall,
+               const SolverSettings& settings, std::span<const DriveCommand> commands,
+               StepProfile* profile);
+
+// After a fine step's positions: fills each driven instrument's DriveState force and torque (raw
+// and low-passed). Inner instruments are evaluated before the outer ones that carry them, whose
+// hands feel their reactions (physics.md 6.1).
+void hand_feedback(std::span<Inst> insts, std::span<const Pair> couplings,
+                   const SolverSettings& settings);
+
+}  // namespace vcsim::internal
