@@ -4,19 +4,17 @@
 #include <fstream>
 #include <initializer_list>
 #include <nlohmann/json.hpp>
-#include <numbers>
 #include <sstream>
 
 #include "field.h"
 #include "vcsim/anatomy.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
 namespace {
 
 using nlohmann::json;
-constexpr double kMm = 1e-3;
-constexpr double kDeg = std::numbers::pi / 180.0;
 
 std::string at(const std::string& base, std::size_t i) {
   std::string s = base;
