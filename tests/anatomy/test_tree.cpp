@@ -316,5 +316,29 @@ TEST(AnatomyJson, MalformedFilesGiveClearErrors) {
   }
 }
 
+// Nesting 100,000 deep (which overflowed the stack), a number beyond a double and a repeated key
+// are input errors naming the file, never a crash or a library's message.
+TEST(AnatomyJson, HostileJsonIsAnInputError) {
+  const std::string ok = example();
+  const std::string deep = std::string(100000, '[') + std::string(100000, ']');
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {deep, "json"},
+      {replaced(ok, "[[0, 0, 30], [3, 0, 35]", std::string("[") + deep + ", [3, 0, 35]"), "json"},
+      {replaced(ok, "\"radius_mm\": 2.0", "\"radius_mm\": 2e999"), "json"},
+      {replaced(ok, "\"version\": 1,", "\"version\": 1, \"version\": 1,"), "version"},
+      {replaced(ok, "\"radius_mm\": 2.0", "\"radius_mm\": 2.0, \"radius_mm\": 3.0"),
+       "segments[0].radius_mm"},
+  };
+  for (const auto& [text, field] : cases) {
+    try {
+      parse_vessel_tree(text, "case.json");
+      ADD_FAILURE() << "accepted; expected an error on " << field;
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.source(), "case.json");
+      EXPECT_EQ(e.field(), field) << e.what();
+    }
+  }
+}
+
 }  // namespace
 }  // namespace vcsim
