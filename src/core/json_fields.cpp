@@ -66,8 +66,10 @@ class Checker final : public nlohmann::json_sax<Json> {
 
   bool parse_error(std::size_t, const std::string& last_token, const Json::exception& e) override {
     if (e.id == 406) {  // out_of_range: a number a double cannot hold, e.g. 1e999
-      throw InputError(source_, "json", cat("expected numbers within the range of a double, got ",
-                                            last_token));
+      const std::string got =
+          last_token.size() > 40 ? cat(last_token.substr(0, 37), "...") : last_token;
+      throw InputError(source_, "json",
+                       cat("expected numbers within the range of a double, got ", got));
     }
     throw InputError(source_, "json", cat("expected valid JSON (", e.what(), ")"));
   }
