@@ -4,10 +4,10 @@
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
-#include <numbers>
 
 #include "commands.h"
 #include "vcsim/instruments.h"
+#include "vcsim/units.h"
 
 namespace vcsim::app {
 
@@ -21,7 +21,6 @@ std::string fmt(double v) {
 
 // The file's units (mm, GPa, deg, 1/cm), so that the output reads like the catalogue file.
 nlohmann::json to_json(const InstrumentSpec& s, const Discretisation& disc) {
-  constexpr double kDeg = 180.0 / std::numbers::pi;
   nlohmann::json sections = nlohmann::json::array();
   for (const auto& t : s.tip_shape) {
     if (t.kind == TipSection::Kind::kStraight) {
@@ -29,8 +28,8 @@ nlohmann::json to_json(const InstrumentSpec& s, const Discretisation& disc) {
     } else {
       sections.push_back({{"arc",
                            {{"radius_mm", t.radius * 1e3},
-                            {"angle_deg", t.angle * kDeg},
-                            {"plane_deg", t.plane * kDeg}}}});
+                            {"angle_deg", t.angle * kDegPerRad},
+                            {"plane_deg", t.plane * kDegPerRad}}}});
     }
   }
   const SegmentPlan plan = plan_segments(s.length, disc);

@@ -3,16 +3,14 @@
 // aorta, ribs hang from the spine. Sizes are typical adult values (docs/anatomy.md).
 #include <algorithm>
 #include <cmath>
-#include <numbers>
 
 #include "field.h"
 #include "vcsim/anatomy.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
 namespace {
-
-constexpr double kPi = std::numbers::pi;
 
 // Flips every triangle if the enclosed signed volume is negative (normals must face outward).
 void orient_outward(TriangleMesh& m) {
@@ -115,7 +113,6 @@ std::string_view to_string(Material m) {
 
 std::vector<BodyPart> build_body_context(const VesselTree& tree) {
   if (!tree.heart) throw InputError(tree.name, "heart", "a heart model is needed for the body");
-  constexpr double mm = 1e-3;
   const HeartModel& h = *tree.heart;
   // Vessel extent and the descending aorta (points of aorta segments behind the heart).
   Vec3 lo = Vec3::Constant(1e300), hi = Vec3::Constant(-1e300);
@@ -124,36 +121,36 @@ std::vector<BodyPart> build_body_context(const VesselTree& tree) {
     for (const Vec3& p : s.points) {
       lo = lo.cwiseMin(p);
       hi = hi.cwiseMax(p);
-      if (s.kind == VesselKind::kAorta && p.y() > h.centre.y() + 30 * mm) desc.push_back(p);
+      if (s.kind == VesselKind::kAorta && p.y() > h.centre.y() + 30 * kMm) desc.push_back(p);
     }
   // Spine behind and right of the descending aorta (constant beyond its ends).
   auto spine_at = [&](double z) {
-    if (desc.empty()) return Vec3(0.0, h.centre.y() + 100 * mm, z);
+    if (desc.empty()) return Vec3(0.0, h.centre.y() + 100 * kMm, z);
     const Vec3* best = &desc.front();
     for (const Vec3& p : desc)
       if (std::abs(p.z() - z) < std::abs(best->z() - z)) best = &p;
-    return Vec3(best->x() - 12 * mm, best->y() + 30 * mm, z);
+    return Vec3(best->x() - 12 * kMm, best->y() + 30 * kMm, z);
   };
-  const double z_top = hi.z() + 20 * mm, z_bot = lo.z() - 40 * mm;
+  const double z_top = hi.z() + 20 * kMm, z_bot = lo.z() - 40 * kMm;
   std::vector<BodyPart> parts;
 
   // Torso: an elliptical cylinder 350 x 260 mm around the spine's anterior, groin to neck.
   {
     const Vec3 sc = spine_at(h.centre.z());
-    std::vector<Vec3> line = {Vec3(0.0, sc.y() - 95 * mm, z_bot),
-                              Vec3(0.0, sc.y() - 95 * mm, z_top)};
+    std::vector<Vec3> line = {Vec3(0.0, sc.y() - 95 * kMm, z_bot),
+                              Vec3(0.0, sc.y() - 95 * kMm, z_top)};
     parts.push_back(
-        {"torso", Material::kSoftTissue, solid_tube(line, 175 * mm, 130 * mm, 48, Vec3::UnitX())});
+        {"torso", Material::kSoftTissue, solid_tube(line, 175 * kMm, 130 * kMm, 48, Vec3::UnitX())});
   }
   // Lungs: either side of the heart and mediastinum.
   const Mat3 I = Mat3::Identity();
   parts.push_back(
       {"lung_left", Material::kLung,
-       ellipsoid(Vec3(h.centre.x() + 70 * mm, h.centre.y() + 35 * mm, h.centre.z() + 75 * mm), I,
-                 Vec3(48, 70, 115) * mm)});
+       ellipsoid(Vec3(h.centre.x() + 70 * kMm, h.centre.y() + 35 * kMm, h.centre.z() + 75 * kMm), I,
+                 Vec3(48, 70, 115) * kMm)});
   parts.push_back({"lung_right", Material::kLung,
-                   ellipsoid(Vec3(-95 * mm, h.centre.y() + 35 * mm, h.centre.z() + 80 * mm), I,
-                             Vec3(52, 72, 120) * mm)});
+                   ellipsoid(Vec3(-95 * kMm, h.centre.y() + 35 * kMm, h.centre.z() + 80 * kMm), I,
+                             Vec3(52, 72, 120) * kMm)});
   // Heart: the tree's model (the coronaries run on its surface).
   {
     Mat3 R;
@@ -166,48 +163,48 @@ std::vector<BodyPart> build_body_context(const VesselTree& tree) {
   // Spine: vertebral bodies (cylinders 22 mm tall, 6 mm discs) from the sacrum to the neck.
   {
     TriangleMesh spine;
-    for (double z = z_bot + 20 * mm; z + 22 * mm < z_top; z += 28 * mm) {
-      const Vec3 c = spine_at(z + 11 * mm);
-      const double r = (z < h.centre.z() - 120 * mm ? 22.0 : 17.0) * mm;  // lumbar wider
-      append(spine, solid_tube({Vec3(c.x(), c.y(), z), Vec3(c.x(), c.y(), z + 22 * mm)}, r, r, 16));
+    for (double z = z_bot + 20 * kMm; z + 22 * kMm < z_top; z += 28 * kMm) {
+      const Vec3 c = spine_at(z + 11 * kMm);
+      const double r = (z < h.centre.z() - 120 * kMm ? 22.0 : 17.0) * kMm;  // lumbar wider
+      append(spine, solid_tube({Vec3(c.x(), c.y(), z), Vec3(c.x(), c.y(), z + 22 * kMm)}, r, r, 16));
     }
     parts.push_back({"spine", Material::kBone, spine});
   }
   // Ribs: ten pairs of 10 mm round bars curving from the spine to the front, sloping down.
   {
     TriangleMesh ribs;
-    const double z0 = h.centre.z() + 140 * mm;
+    const double z0 = h.centre.z() + 140 * kMm;
     for (int k = 0; k < 10; ++k) {
-      const double z = z0 - k * 26 * mm;
+      const double z = z0 - k * 26 * kMm;
       const Vec3 sp = spine_at(z);
-      const double half_width = (110.0 + 5.0 * std::min(k, 6)) * mm;
+      const double half_width = (110.0 + 5.0 * std::min(k, 6)) * kMm;
       for (double side : {-1.0, 1.0}) {
         std::vector<Vec3> line;
         for (int i = 0; i <= 16; ++i) {
           const double a = kPi * i / 16.0;  // 0 at the spine, pi at the front
-          line.emplace_back(side * (15 * mm + half_width * std::sin(a)),
-                            sp.y() + (1.0 - std::cos(a)) * 0.5 * (-85 * mm - sp.y()),
-                            z - 45 * mm * (1.0 - std::cos(a)) * 0.5);
+          line.emplace_back(side * (15 * kMm + half_width * std::sin(a)),
+                            sp.y() + (1.0 - std::cos(a)) * 0.5 * (-85 * kMm - sp.y()),
+                            z - 45 * kMm * (1.0 - std::cos(a)) * 0.5);
         }
-        append(ribs, solid_tube(line, 5 * mm, 5 * mm, 8));
+        append(ribs, solid_tube(line, 5 * kMm, 5 * kMm, 8));
       }
     }
     parts.push_back({"ribs", Material::kBone, ribs});
   }
   // Sternum: a 30 x 12 x 170 mm bar in front of the heart.
   {
-    const double y = h.centre.y() - h.radii.y() - 35 * mm;
+    const double y = h.centre.y() - h.radii.y() - 35 * kMm;
     parts.push_back(
         {"sternum", Material::kBone,
-         solid_tube({Vec3(0, y, h.centre.z() - 20 * mm), Vec3(0, y, h.centre.z() + 150 * mm)},
-                    15 * mm, 6 * mm, 4, Vec3::UnitX())});
+         solid_tube({Vec3(0, y, h.centre.z() - 20 * kMm), Vec3(0, y, h.centre.z() + 150 * kMm)},
+                    15 * kMm, 6 * kMm, 4, Vec3::UnitX())});
   }
   // Diaphragm: a dome whose top lies just under the heart's inferior surface.
   {
-    const double z_heart_low = h.centre.z() - std::abs(h.axis.z()) * h.radii.x() - 15 * mm;
+    const double z_heart_low = h.centre.z() - std::abs(h.axis.z()) * h.radii.x() - 15 * kMm;
     parts.push_back({"diaphragm", Material::kSoftTissue,
-                     ellipsoid(Vec3(0.0, h.centre.y() + 30 * mm, z_heart_low - 40 * mm), I,
-                               Vec3(150, 110, 40) * mm)});
+                     ellipsoid(Vec3(0.0, h.centre.y() + 30 * kMm, z_heart_low - 40 * kMm), I,
+                               Vec3(150, 110, 40) * kMm)});
   }
   return parts;
 }

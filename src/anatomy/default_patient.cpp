@@ -4,17 +4,14 @@
 // in mm in DICOM LPS (x left, y posterior, z head) with the aortic valve at the origin.
 #include <algorithm>
 #include <cmath>
-#include <numbers>
 
 #include "field.h"
 #include "vcsim/anatomy.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
 namespace {
-
-constexpr double kMm = 1e-3;
-constexpr double kDeg = std::numbers::pi / 180.0;
 
 // A densely sampled curve with its cumulative arc length.
 struct Dense {

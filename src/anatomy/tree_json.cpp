@@ -2,66 +2,25 @@
 // SI at load; unknown keys are refused so that a typo is not silently ignored.
 #include <cmath>
 #include <fstream>
-#include <initializer_list>
-#include <nlohmann/json.hpp>
-#include <numbers>
 #include <sstream>
 
 #include "field.h"
+#include "json_fields.h"
 #include "vcsim/anatomy.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
 namespace {
 
-using nlohmann::json;
-constexpr double kMm = 1e-3;
-constexpr double kDeg = std::numbers::pi / 180.0;
+using internal::index_path;
+using internal::Json;
+using internal::JsonFields;
 
-std::string at(const std::string& base, std::size_t i) {
-  std::string s = base;
-  s += '[';
-  s += std::to_string(i);
-  s += ']';
-  return s;
-}
-
-void only_keys(const json& j, std::initializer_list<const char*> keys, const std::string& src,
-               const std::string& field) {
-  for (auto it = j.begin(); it != j.end(); ++it) {
-    bool ok = false;
-    for (const char* k : keys) ok = ok || it.key() == k;
-    if (!ok) {
-      std::string list;
-      for (const char* k : keys) {
-        if (!list.empty()) list += ", ";
-        list += k;
-      }
-      std::string f = field.empty() ? it.key() : field + "." + it.key();
-      throw InputError(src, f, "unknown key; expected one of " + list);
-    }
-  }
-}
-
-const json& need(const json& j, const char* key, const std::string& src, const std::string& f) {
-  if (!j.contains(key)) throw InputError(src, f.empty() ? key : f + "." + key, "missing");
-  return j.at(key);
-}
-
-double number(const json& j, const std::string& src, const std::string& f) {
-  if (!j.is_number()) throw InputError(src, f, "expected a number");
-  return require_finite(j.get<double>(), src, f);
-}
-
-std::string text(const json& j, const std::string& src, const std::string& f) {
-  if (!j.is_string()) throw InputError(src, f, "expected a string");
-  return j.get<std::string>();
-}
-
-Vec3 vec3(const json& j, const std::string& src, const std::string& f, double scale) {
-  if (!j.is_array() || j.size() != 3) throw InputError(src, f, "expected [x, y, z]");
-  return Vec3(number(j[0], src, at(f, 0)), number(j[1], src, at(f, 1)),
-              number(j[2], src, at(f, 2))) *
+Vec3 vec3(const Json& j, const JsonFields& f, const std::string& path, double scale) {
+  if (!j.is_array() || j.size() != 3) throw InputError(f.source(), path, "expected [x, y, z]");
+  return Vec3(f.as_number(j[0], index_path(path, 0)), f.as_number(j[1], index_path(path, 1)),
+              f.as_number(j[2], index_path(path, 2))) *
          scale;
 }
 
@@ -72,15 +31,16 @@ VesselKind kind_from(const std::string& s, const std::string& src, const std::st
   throw InputError(src, f, "expected aorta, artery, coronary or sinus, got '" + s + "'");
 }
 
-TreeLocation location(const json& j, const VesselTree& t, const std::string& src,
-                      const std::string& f) {
-  if (!j.is_object()) throw InputError(src, f, "expected an object {segment, distance_mm}");
-  only_keys(j, {"segment", "distance_mm"}, src, f);
+TreeLocation location(const Json& j, const VesselTree& t, const std::string& src,
+                      const std::string& path) {
+  if (!j.is_object()) throw InputError(src, path, "expected an object {segment, distance_mm}");
+  JsonFields f(j, src, path);
+  f.keys({"segment", "distance_mm"});
   TreeLocation loc;
-  const std::string name = text(need(j, "segment", src, f), src, f + ".segment");
+  const std::string name = f.string("segment");
   loc.segment = t.find(name);
-  if (loc.segment < 0) throw InputError(src, f + ".segment", "no segment named '" + name + "'");
-  loc.distance = number(need(j, "distance_mm", src, f), src, f + ".distance_mm") * kMm;
+  if (loc.segment < 0) f.fail("segment", "no segment named '" + name + "'");
+  loc.distance = f.number("distance_mm") * kMm;
   return loc;
 }
 
@@ -92,121 +52,89 @@ double mm(double v) {
 }  // namespace
 
 VesselTree parse_vessel_tree(std::string_view json_text, const std::string& src) {
-  json j;
-  try {
-    j = json::parse(json_text.begin(), json_text.end());
-  } catch (const json::parse_error& e) {
-    throw InputError(src, "json", std::string("expected valid JSON: ") + e.what());
-  }
+  const Json j = internal::parse_json_text(json_text, src);
   if (!j.is_object()) throw InputError(src, "json", "expected an object at the top level");
-  only_keys(j,
-            {"format", "version", "name", "coordinates", "open_start", "segments", "lesions",
-             "access", "target", "heart"},
-            src, "");
-  if (text(need(j, "format", src, ""), src, "format") != "vcsim-anatomy")
-    throw InputError(src, "format", "expected \"vcsim-anatomy\"");
-  if (number(need(j, "version", src, ""), src, "version") != 1.0)
-    throw InputError(src, "version", "expected 1");
-  if (j.contains("coordinates") && text(j["coordinates"], src, "coordinates") != "LPS")
-    throw InputError(src, "coordinates", "expected \"LPS\" (DICOM patient coordinates)");
+  JsonFields f(j, src, "");
+  f.keys({"format", "version", "name", "coordinates", "open_start", "segments", "lesions",
+          "access", "target", "heart"});
+  if (f.string("format") != "vcsim-anatomy") f.fail("format", "expected \"vcsim-anatomy\"");
+  if (f.number("version") != 1.0) f.fail("version", "expected 1");
+  if (f.string_or("coordinates", "LPS") != "LPS")
+    f.fail("coordinates", "expected \"LPS\" (DICOM patient coordinates)");
   VesselTree t;
-  t.name = j.contains("name") ? text(j["name"], src, "name") : std::string("unnamed");
-  if (j.contains("open_start")) {
-    if (!j["open_start"].is_boolean())
-      throw InputError(src, "open_start", "expected true or false");
-    t.open_start = j["open_start"].get<bool>();
-  }
-  const json& segs = need(j, "segments", src, "");
-  if (!segs.is_array() || segs.empty())
-    throw InputError(src, "segments", "expected a non-empty array");
+  t.name = f.string_or("name", "unnamed");
+  t.open_start = f.boolean_or("open_start", t.open_start);
+  const Json& segs = f.array("segments");
+  if (segs.empty()) f.fail("segments", "expected a non-empty array");
   for (std::size_t i = 0; i < segs.size(); ++i) {
-    const std::string f = at("segments", i);
-    const json& s = segs[i];
-    if (!s.is_object()) throw InputError(src, f, "expected an object");
-    only_keys(s, {"name", "kind", "parent", "points_mm", "radii_mm", "radius_mm", "closed_end"},
-              src, f);
+    JsonFields s(segs[i], src, index_path("segments", i));
+    s.keys({"name", "kind", "parent", "points_mm", "radii_mm", "radius_mm", "closed_end"});
     VesselSegment seg;
-    seg.name = text(need(s, "name", src, f), src, f + ".name");
+    seg.name = s.string("name");
     if (t.find(seg.name) >= 0)
-      throw InputError(src, f + ".name", "expected a unique name, '" + seg.name + "' repeats");
-    if (s.contains("kind"))
-      seg.kind = kind_from(text(s["kind"], src, f + ".kind"), src, f + ".kind");
-    if (s.contains("parent") && !s["parent"].is_null()) {
-      const std::string p = text(s["parent"], src, f + ".parent");
-      seg.parent = t.find(p);
+      s.fail("name", "expected a unique name, '" + seg.name + "' repeats");
+    if (s.has("kind")) seg.kind = kind_from(s.string("kind"), src, s.field("kind"));
+    if (const Json* p = s.get("parent"); p && !p->is_null()) {
+      const std::string name = s.as_string(*p, s.field("parent"));
+      seg.parent = t.find(name);
       if (seg.parent < 0)
-        throw InputError(src, f + ".parent",
-                         "expected the name of an earlier segment, got '" + p + "'");
+        s.fail("parent", "expected the name of an earlier segment, got '" + name + "'");
     }
-    const json& pts = need(s, "points_mm", src, f);
-    if (!pts.is_array()) throw InputError(src, f + ".points_mm", "expected an array of [x, y, z]");
+    const Json& pts = s.require("points_mm");
+    if (!pts.is_array()) s.fail("points_mm", "expected an array of [x, y, z]");
     for (std::size_t k = 0; k < pts.size(); ++k)
-      seg.points.push_back(vec3(pts[k], src, at(f + ".points_mm", k), kMm));
-    if (s.contains("radii_mm") == s.contains("radius_mm"))
-      throw InputError(src, f + ".radii_mm",
-                       "expected either radii_mm (one per point) or radius_mm");
-    if (s.contains("radius_mm")) {
-      seg.radii.assign(seg.points.size(), number(s["radius_mm"], src, f + ".radius_mm") * kMm);
+      seg.points.push_back(vec3(pts[k], s, index_path(s.field("points_mm"), k), kMm));
+    if (s.has("radii_mm") == s.has("radius_mm"))
+      s.fail("radii_mm", "expected either radii_mm (one per point) or radius_mm");
+    if (s.has("radius_mm")) {
+      seg.radii.assign(seg.points.size(), s.number("radius_mm") * kMm);
     } else {
-      const json& r = s["radii_mm"];
-      if (!r.is_array()) throw InputError(src, f + ".radii_mm", "expected an array of numbers");
+      const Json& r = s.require("radii_mm");
+      if (!r.is_array()) s.fail("radii_mm", "expected an array of numbers");
       for (std::size_t k = 0; k < r.size(); ++k)
-        seg.radii.push_back(number(r[k], src, at(f + ".radii_mm", k)) * kMm);
+        seg.radii.push_back(s.as_number(r[k], index_path(s.field("radii_mm"), k)) * kMm);
     }
-    if (s.contains("closed_end")) {
-      if (!s["closed_end"].is_boolean())
-        throw InputError(src, f + ".closed_end", "expected true or false");
-      seg.closed_end = s["closed_end"].get<bool>();
-    }
+    seg.closed_end = s.boolean_or("closed_end", seg.closed_end);
     t.segments.push_back(std::move(seg));
   }
-  if (j.contains("lesions")) {
-    const json& ls = j["lesions"];
-    if (!ls.is_array()) throw InputError(src, "lesions", "expected an array");
+  if (f.has("lesions")) {
+    const Json& ls = f.array("lesions");
     for (std::size_t i = 0; i < ls.size(); ++i) {
-      const std::string f = at("lesions", i);
-      const json& l = ls[i];
-      if (!l.is_object()) throw InputError(src, f, "expected an object");
-      only_keys(l,
-                {"segment", "distance_mm", "length_mm", "diameter_reduction_percent",
-                 "eccentricity", "angle_deg"},
-                src, f);
+      JsonFields l(ls[i], src, index_path("lesions", i));
+      l.keys({"segment", "distance_mm", "length_mm", "diameter_reduction_percent", "eccentricity",
+              "angle_deg"});
       Lesion les;
-      const std::string name = text(need(l, "segment", src, f), src, f + ".segment");
+      const std::string name = l.string("segment");
       les.segment = t.find(name);
-      if (les.segment < 0) throw InputError(src, f + ".segment", "no segment named '" + name + "'");
-      les.distance = number(need(l, "distance_mm", src, f), src, f + ".distance_mm") * kMm;
-      les.length = number(need(l, "length_mm", src, f), src, f + ".length_mm") * kMm;
-      les.diameter_reduction = number(need(l, "diameter_reduction_percent", src, f), src,
-                                      f + ".diameter_reduction_percent") /
-                               100.0;
-      if (l.contains("eccentricity"))
-        les.eccentricity = number(l["eccentricity"], src, f + ".eccentricity");
-      if (l.contains("angle_deg")) les.angle = number(l["angle_deg"], src, f + ".angle_deg") * kDeg;
+      if (les.segment < 0) l.fail("segment", "no segment named '" + name + "'");
+      les.distance = l.number("distance_mm") * kMm;
+      les.length = l.number("length_mm") * kMm;
+      les.diameter_reduction = l.number("diameter_reduction_percent") / 100.0;
+      if (l.has("eccentricity")) les.eccentricity = l.number("eccentricity");
+      if (l.has("angle_deg")) les.angle = l.number("angle_deg") * kDeg;
       t.lesions.push_back(les);
     }
   }
-  t.access = j.contains("access") ? location(j["access"], t, src, "access") : TreeLocation{0, 0.0};
-  if (j.contains("target")) {
-    t.target = location(j["target"], t, src, "target");
+  const Json* access = f.get("access");
+  t.access = access ? location(*access, t, src, "access") : TreeLocation{0, 0.0};
+  if (const Json* target = f.get("target")) {
+    t.target = location(*target, t, src, "target");
   } else {
     t.target.segment = t.num_segments() - 1;
     t.target.distance = segment_length(t.segments.back());
   }
-  if (j.contains("heart")) {
-    const json& h = j["heart"];
-    if (!h.is_object()) throw InputError(src, "heart", "expected an object");
-    only_keys(h, {"centre_mm", "axis", "anterior", "radii_mm"}, src, "heart");
+  if (const Json* heart = f.get("heart")) {
+    JsonFields h(*heart, src, "heart");
+    h.keys({"centre_mm", "axis", "anterior", "radii_mm"});
     HeartModel hm;
-    hm.centre = vec3(need(h, "centre_mm", src, "heart"), src, "heart.centre_mm", kMm);
-    hm.axis = vec3(need(h, "axis", src, "heart"), src, "heart.axis", 1.0);
-    Vec3 ant = vec3(need(h, "anterior", src, "heart"), src, "heart.anterior", 1.0);
-    hm.radii = vec3(need(h, "radii_mm", src, "heart"), src, "heart.radii_mm", kMm);
-    if (hm.axis.norm() < 1e-9) throw InputError(src, "heart.axis", "expected a non-zero vector");
+    hm.centre = vec3(h.require("centre_mm"), h, h.field("centre_mm"), kMm);
+    hm.axis = vec3(h.require("axis"), h, h.field("axis"), 1.0);
+    Vec3 ant = vec3(h.require("anterior"), h, h.field("anterior"), 1.0);
+    hm.radii = vec3(h.require("radii_mm"), h, h.field("radii_mm"), kMm);
+    if (hm.axis.norm() < 1e-9) h.fail("axis", "expected a non-zero vector");
     hm.axis.normalize();
     ant -= ant.dot(hm.axis) * hm.axis;
-    if (ant.norm() < 1e-9)
-      throw InputError(src, "heart.anterior", "expected a vector not parallel to the axis");
+    if (ant.norm() < 1e-9) h.fail("anterior", "expected a vector not parallel to the axis");
     hm.anterior = ant.normalized();
     t.heart = hm;
   }
@@ -226,17 +154,17 @@ std::string vessel_tree_to_json(const VesselTree& t) {
   // Written by hand so that each point sits on one line; scalars through nlohmann for escaping.
   std::ostringstream os;
   auto v3 = [&](const Vec3& p, double scale) {
-    os << '[' << json(std::round(p.x() / scale * 1e4) / 1e4).dump() << ", "
-       << json(std::round(p.y() / scale * 1e4) / 1e4).dump() << ", "
-       << json(std::round(p.z() / scale * 1e4) / 1e4).dump() << ']';
+    os << '[' << Json(std::round(p.x() / scale * 1e4) / 1e4).dump() << ", "
+       << Json(std::round(p.y() / scale * 1e4) / 1e4).dump() << ", "
+       << Json(std::round(p.z() / scale * 1e4) / 1e4).dump() << ']';
   };
   os << "{\n  \"format\": \"vcsim-anatomy\",\n  \"version\": 1,\n  \"name\": "
-     << json(t.name).dump()
+     << Json(t.name).dump()
      << ",\n  \"coordinates\": \"LPS\",\n  \"open_start\": " << (t.open_start ? "true" : "false")
      << ",\n";
   auto loc = [&](const char* key, const TreeLocation& l) {
-    os << "  \"" << key << "\": {\"segment\": " << json(t.segments[l.segment].name).dump()
-       << ", \"distance_mm\": " << json(mm(l.distance)).dump() << "},\n";
+    os << "  \"" << key << "\": {\"segment\": " << Json(t.segments[l.segment].name).dump()
+       << ", \"distance_mm\": " << Json(mm(l.distance)).dump() << "},\n";
   };
   loc("access", t.access);
   loc("target", t.target);
@@ -255,19 +183,19 @@ std::string vessel_tree_to_json(const VesselTree& t) {
   os << "  \"lesions\": [";
   for (std::size_t i = 0; i < t.lesions.size(); ++i) {
     const Lesion& l = t.lesions[i];
-    os << (i ? ",\n" : "\n") << "    {\"segment\": " << json(t.segments[l.segment].name).dump()
-       << ", \"distance_mm\": " << json(mm(l.distance)).dump()
-       << ", \"length_mm\": " << json(mm(l.length)).dump() << ", \"diameter_reduction_percent\": "
-       << json(std::round(l.diameter_reduction * 1e6) / 1e4).dump()
-       << ", \"eccentricity\": " << json(l.eccentricity).dump()
-       << ", \"angle_deg\": " << json(std::round(l.angle / kDeg * 1e4) / 1e4).dump() << "}";
+    os << (i ? ",\n" : "\n") << "    {\"segment\": " << Json(t.segments[l.segment].name).dump()
+       << ", \"distance_mm\": " << Json(mm(l.distance)).dump()
+       << ", \"length_mm\": " << Json(mm(l.length)).dump() << ", \"diameter_reduction_percent\": "
+       << Json(std::round(l.diameter_reduction * 1e6) / 1e4).dump()
+       << ", \"eccentricity\": " << Json(l.eccentricity).dump()
+       << ", \"angle_deg\": " << Json(std::round(l.angle / kDeg * 1e4) / 1e4).dump() << "}";
   }
   os << (t.lesions.empty() ? "" : "\n  ") << "],\n  \"segments\": [";
   for (std::size_t i = 0; i < t.segments.size(); ++i) {
     const VesselSegment& s = t.segments[i];
-    os << (i ? ",\n" : "\n") << "    {\"name\": " << json(s.name).dump() << ", \"kind\": \""
+    os << (i ? ",\n" : "\n") << "    {\"name\": " << Json(s.name).dump() << ", \"kind\": \""
        << to_string(s.kind) << "\", \"parent\": "
-       << (s.parent < 0 ? std::string("null") : json(t.segments[s.parent].name).dump())
+       << (s.parent < 0 ? std::string("null") : Json(t.segments[s.parent].name).dump())
        << ", \"closed_end\": " << (s.closed_end ? "true" : "false") << ",\n     \"points_mm\": [";
     for (std::size_t k = 0; k < s.points.size(); ++k) {
       os << (k ? ",\n       " : "\n       ");
@@ -275,7 +203,7 @@ std::string vessel_tree_to_json(const VesselTree& t) {
     }
     os << "],\n     \"radii_mm\": [";
     for (std::size_t k = 0; k < s.radii.size(); ++k)
-      os << (k ? (k % 10 ? ", " : ",\n       ") : "") << json(mm(s.radii[k])).dump();
+      os << (k ? (k % 10 ? ", " : ",\n       ") : "") << Json(mm(s.radii[k])).dump();
     os << "]}";
   }
   os << "\n  ]\n}\n";

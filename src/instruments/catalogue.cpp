@@ -3,11 +3,11 @@
 #include <algorithm>
 #include <cstdlib>
 #include <fstream>
-#include <numbers>
 #include <sstream>
 
 #include "json_fields.h"
 #include "vcsim/instruments.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
@@ -16,10 +16,6 @@ using internal::JsonFields;
 
 namespace {
 
-constexpr double kMm = 1e-3;
-constexpr double kInch = 25.4e-3;
-constexpr double kFrench = 1e-3 / 3.0;  // 1 Fr = 1/3 mm outer diameter
-constexpr double kDeg = std::numbers::pi / 180.0;
 constexpr double kPerCm = 100.0;  // 1/cm -> 1/m
 
 bool valid_name(const std::string& s) {

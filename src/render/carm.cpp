@@ -3,12 +3,11 @@
 #include <string>
 
 #include "vcsim/render.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
 namespace {
-constexpr double kDeg = 3.14159265358979323846 / 180.0;
-
 void require_between(double v, double lo, double hi, const std::string& source,
                      const std::string& field, const std::string& unit) {
   require_finite(v, source, field);

@@ -7,6 +7,7 @@
 
 #include "json_fields.h"
 #include "vcsim/sim.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
@@ -14,7 +15,6 @@ namespace {
 
 using internal::JsonFields;
 using Json = internal::Json;
-constexpr double kMm = 1e-3;
 
 AutopilotPhase parse_phase(const Json& j, const std::string& src, const std::string& path) {
   AutopilotPhase p;

@@ -5,16 +5,15 @@
 #include <cmath>
 #include <functional>
 #include <map>
-#include <numbers>
 #include <stdexcept>
 
+#include "vcsim/units.h"
 #include "vcsim/validate.h"
 
 namespace vcsim {
 
 namespace {
 
-constexpr double kPi = std::numbers::pi;
 constexpr double kG = 9.81;
 
 bool is_set(double v) {

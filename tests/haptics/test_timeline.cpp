@@ -205,4 +205,27 @@ TEST(Timeline, BadFilesNameFileAndField) {
   EXPECT_THROW(ScriptedTimeline::load("/nonexistent/timeline.json"), vcsim::InputError);
 }
 
+// Nesting 100,000 deep (which overflowed the stack), a number beyond a double and a repeated key
+// are input errors naming the file, never a crash or a library's message.
+TEST(Timeline, HostileJsonIsAnInputError) {
+  const std::string deep = std::string(100000, '[') + std::string(100000, ']');
+  const std::string key = R"({"keyframes": [{"t_s": 0, "instruments": {"gw": )";
+  const struct {
+    std::string text;
+    const char* field;
+  } cases[] = {
+      {deep, "json"},
+      {key + deep + "}}]}", "json"},
+      {R"({"keyframes": [{"t_s": 1e999}]})", "json"},
+      {key + R"({"translation_mm": 1, "rotation_deg": 0, "translation_mm": 2}}}]})",
+       "keyframes[0].instruments.gw.translation_mm"},
+      {R"({"keyframes": [{"t_s": 0}], "keyframes": []})", "keyframes"},
+  };
+  for (const auto& c : cases) {
+    const std::string err = error_of(c.text);
+    EXPECT_EQ(err.rfind(std::string(c.field) + " | scripts/push.json: " + c.field + ": ", 0), 0u)
+        << c.text.substr(0, 80) << "\n -> " << err;
+  }
+}
+
 }  // namespace

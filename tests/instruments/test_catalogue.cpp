@@ -211,6 +211,33 @@ TEST(CatalogueErrors, SyntaxErrorNamesTheFile) {
   EXPECT_THROW(vcsim::parse_instrument("[1, 2]", "x.json"), InputError);
 }
 
+// Nesting 100,000 deep (which overflowed the stack), a number beyond a double and a repeated key
+// are input errors naming the file, never a crash or a library's message.
+TEST(CatalogueErrors, HostileJsonIsAnInputError) {
+  auto field_of = [](const std::string& text) -> std::string {
+    try {
+      vcsim::parse_instrument(text, "data/instruments/bad.json", "bad");
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.source(), "data/instruments/bad.json");
+      return e.field();
+    }
+    return "accepted";
+  };
+  const std::string ok = valid_wire().dump();  // {"density_kg_m3":6450,...,"youngs_modulus_gpa":10}
+  const std::string rest = ok.substr(1);      // the document after its opening brace
+  const std::string deep = std::string(100000, '[') + std::string(100000, ']');
+  ASSERT_EQ(field_of(ok), "accepted");
+  EXPECT_EQ(field_of(deep), "json");
+  EXPECT_EQ(field_of(std::string("{\"comment\": ") + deep + ", " + rest), "json");
+  EXPECT_EQ(field_of(std::string("{\"comment\": 1e999, ") + rest), "json");
+  EXPECT_EQ(field_of(std::string("{\"length_mm\": 1500, ") + rest), "length_mm");
+  std::string twice = ok;
+  const auto at = twice.find("\"lumen\":");
+  ASSERT_NE(at, std::string::npos);
+  twice.insert(at, "\"lumen\":0.01,");
+  EXPECT_EQ(field_of(twice), "friction.lumen");
+}
+
 TEST(CatalogueErrors, LoadingAFolderNamesTheBadFile) {
   std::string tag = "vcsim_cat_";
   tag += std::to_string(::getpid());

@@ -115,5 +115,21 @@ TEST(RunCli, BadInputExitsWithTwo) {
   EXPECT_NE(r.err.find("SCENARIO"), std::string::npos) << r.err;
 }
 
+// A scenario nested 100,000 deep overflowed the stack; it is now one line naming the file.
+TEST(RunCli, DeeplyNestedScenarioExitsWithTwo) {
+  const fs::path d = scratch("deep");
+  std::string text = R"({"format": "vcsim-scenario", "version": 1, "name": )";
+  text += std::string(100000, '[');
+  text += std::string(100000, ']');
+  text += "}";
+  write(d / "s.json", text);
+  const CliResult r =
+      run_cli("run " + (d / "s.json").string() + " --no-frames --out " + (d / "out").string());
+  EXPECT_EQ(r.status, 2) << r.err.substr(0, 300);
+  EXPECT_EQ(r.err.rfind("vcsim: error: " + (d / "s.json").string() + ": json: ", 0), 0u) << r.err;
+  EXPECT_NE(r.err.find("levels of nesting"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find('\n'), r.err.size() - 1) << r.err;  // one line
+}
+
 }  // namespace
 }  // namespace vcsim::test

@@ -152,6 +152,18 @@ TEST(Scenario, BadInputNamesTheField) {
                "instruments[1].name");
 }
 
+// Nesting 100,000 deep (which overflowed the stack), a number beyond a double and a repeated key
+// are input errors naming the file, never a crash or a library's message.
+TEST(Scenario, HostileJsonIsAnInputError) {
+  const std::string deep = std::string(100000, '[') + std::string(100000, ']');
+  expect_error(deep, "json");
+  expect_error(edit("\"name\": \"t\"", std::string("\"name\": ") + deep), "json");
+  expect_error(edit("\"version\": 1", "\"version\": 1e999"), "json");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"name\": \"u\""), "name");
+  expect_error(edit("\"distance_mm\": 5", "\"distance_mm\": 5, \"distance_mm\": 6"),
+               "autopilot[0].goal.distance_mm");
+}
+
 TEST(Scenario, MissingFileIsAnInputError) {
   EXPECT_THROW(load_scenario("/nonexistent/scenario.json"), InputError);
 }
