@@ -9,6 +9,7 @@
 
 #include "json_fields.h"
 #include "vcsim/haptics.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
@@ -21,12 +22,6 @@ const char* to_string(InstrumentCommand::Mode m) {
 }
 
 namespace {
-// Operator units to SI (a scripted timeline's and a device's values are converted once, here).
-constexpr double kMm = 1e-3;
-constexpr double kDeg = std::numbers::pi / 180.0;
-constexpr double kMl = 1e-6;       // m^3
-constexpr double kAtm = 101325.0;  // Pa
-
 std::string num(double v) {
   std::ostringstream os;
   os << v;

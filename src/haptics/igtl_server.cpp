@@ -32,6 +32,7 @@
 #include "json_fields.h"
 #include "vcsim/core.h"
 #include "vcsim/haptics.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
@@ -362,7 +363,7 @@ struct IgtlServer::Impl {
       if (std::abs(len - 1.0) > 0.05) return drop(device, "rotation part is not a rotation");
     }
     const double depth_mm = m[11];
-    const double angle_deg = std::atan2(m[1], m[0]) * 180.0 / 3.14159265358979323846;
+    const double angle_deg = std::atan2(m[1], m[0]) * 180.0 / kPi;
     set_instrument(idx, device, InstrumentCommand::Mode::kPosition, depth_mm, angle_deg, true);
   }
 
@@ -560,8 +561,8 @@ void IgtlServer::poll(double, StepCommands& out) {
   out.drive.resize(s.latest.instruments.size());
   for (std::size_t i = 0; i < out.drive.size(); ++i)
     out.drive[i] = to_drive_command(s.latest.instruments[i]);
-  out.balloon_pressure = s.latest.balloon_pressure_atm * 101325.0;  // Pa
-  out.syringe_flow = s.latest.syringe_flow_ml_s * 1e-6;             // m^3/s
+  out.balloon_pressure = s.latest.balloon_pressure_atm * kAtm;
+  out.syringe_flow = s.latest.syringe_flow_ml_s * kMl;
   out.buttons = s.latest.buttons;
 }
 

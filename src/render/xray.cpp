@@ -6,6 +6,7 @@
 #include <unordered_map>
 
 #include "vcsim/render.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
@@ -92,7 +93,7 @@ TriangleMesh tube_mesh(std::span<const Vec3> nodes_in, std::span<const double> r
   TriangleMesh m;
   const int n = static_cast<int>(p.size());
   if (n < 2) return m;
-  constexpr double kTwoPi = 6.283185307179586;
+  constexpr double kTwoPi = 2.0 * kPi;
   // Rings with frames by parallel transport, so the tube does not twist.
   Vec3 t = (p[1] - p[0]).normalized();
   Vec3 nrm = t.unitOrthogonal();

@@ -9,12 +9,12 @@
 #include <numbers>
 
 #include "vcsim/sim.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
 namespace {
 
-constexpr double kPi = std::numbers::pi;
 constexpr double kSpacing = 1e-3;       // m between route points
 constexpr double kProgressStep = 1e-3;  // m of progress that counts as moving on
 constexpr double kLookAhead = 12e-3;    // m along the route the tip is aimed at

@@ -38,7 +38,7 @@ AutopilotPhase parse_phase(const Json& j, const std::string& src, const std::str
     p.relative_to = f.text_or("relative_to", "");
   } else if (action == "inject") {
     p.kind = AutopilotPhase::Kind::kInject;
-    p.flow = f.in_range("flow_ml_s", 0.0, 30.0) * 1e-6;  // m^3/s
+    p.flow = f.in_range("flow_ml_s", 0.0, 30.0) * kMl;
     p.duration = f.positive_or("duration_s", 2.0);
   } else if (action == "wait") {
     p.kind = AutopilotPhase::Kind::kWait;
@@ -118,7 +118,7 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
     sc.fine_steps = static_cast<int>(n);
   }
   sc.fine_step_speed = f.in_range_or("fine_step_speed_mm_s", 0.0, 1000.0, 130.0) * kMm;
-  sc.fine_step_travel = f.in_range_or("fine_step_travel_um", 0.0, 1000.0, 25.0) * 1e-6;
+  sc.fine_step_travel = f.in_range_or("fine_step_travel_um", 0.0, 1000.0, 25.0) * kUm;
   sc.fine_step_jump = f.nonnegative_or("fine_step_jump_n", 0.3);
   sc.fine_step_hold = f.in_range_or("fine_step_hold_ms", 0.0, 1000.0, 20.0) * 1e-3;
 
@@ -195,7 +195,7 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   }
   if (f.has("contrast")) {
     JsonFields c = f.object("contrast");
-    if (c.has("blood_flow_ml_s")) sc.contrast.blood_flow = c.number("blood_flow_ml_s") * 1e-6;
+    if (c.has("blood_flow_ml_s")) sc.contrast.blood_flow = c.number("blood_flow_ml_s") * kMl;
     sc.contrast.blood_speed = c.number_or("blood_speed_mm_s", sc.contrast.blood_speed / kMm) * kMm;
     sc.contrast.washout = c.number_or("washout_s", sc.contrast.washout);
     sc.contrast.concentration = c.number_or("concentration", sc.contrast.concentration);

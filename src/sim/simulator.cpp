@@ -8,12 +8,12 @@
 #include <numbers>
 
 #include "sim_scratch.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
 namespace {
 
-constexpr double kMm = 1e-3;
 // Cardiac output at rest, 5 l/min (clinical.md): what dilutes contrast injected into the aorta.
 constexpr double kCardiacOutput = 83.0e-6;  // m^3/s
 constexpr double kContrastFill = 0.1;       // s, time constant of filling a segment once it arrives

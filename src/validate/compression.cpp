@@ -4,6 +4,7 @@
 #include <numbers>
 
 #include "vcsim/experiments.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
@@ -49,7 +50,7 @@ CompressionScene make_compression_scene(const CompressionOptions& o, DistanceMet
   BentTubeSpec tube;
   tube.straight1 = o.straight1;
   tube.bend_radius = o.bend_radius;
-  tube.bend_angle = o.bend_angle_deg * std::numbers::pi / 180.0;
+  tube.bend_angle = o.bend_angle_deg * kPi / 180.0;
   tube.straight2 = o.straight2;
   tube.radius = o.lumen_radius;
   tube.sides = 24;
@@ -134,7 +135,7 @@ CompressionRow run_compression(const CompressionOptions& o, DistanceMethod metho
   StaticWall wall = sc.wall();
   const double dt = sc.model.dt();
   const auto centreline = bent_centreline(o.straight1, o.bend_radius,
-                                          o.bend_angle_deg * std::numbers::pi / 180.0, o.straight2);
+                                          o.bend_angle_deg * kPi / 180.0, o.straight2);
   DriveCommand cmd;
   cmd.mode = DriveCommand::Mode::kPosition;
   const long long steps = compression_steps(o, dt);
