@@ -377,11 +377,8 @@ void Autopilot::command(const SimModel& md, const SimState& st, StepCommands& ou
     roll_[i] += std::clamp(roll_target_[i] - roll_[i], -max_spin * dt, max_spin * dt);
     DriveCommand& c = out.drive[i];
     c.mode = DriveCommand::Mode::kPosition;
-    // TEMPORARY: the round trip through millimetres and degrees that commands made before they
-    // were resolved to SI at the input boundary, kept for one commit so that the engine's split
-    // into model, state and workspace is checked bit for bit against the run before it.
-    c.translation = (depth_[i] * 1e3) * 1e-3;
-    c.rotation = (roll_[i] * 180.0 / kPi) * (kPi / 180.0);
+    c.translation = depth_[i];
+    c.rotation = roll_[i];
   }
 }
 
