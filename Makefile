@@ -33,6 +33,7 @@ test-asan: build-asan
 bench: build
 	build/bin/vcsim_bench_rod --benchmark_min_time=0.2
 	build/bin/vcsim_bench_solver --benchmark_min_time=0.5
+	build/bin/vcsim_bench_sim
 	build/bin/vcsim bench rod --nodes 256
 	build/bin/vcsim bench compression
 

@@ -60,5 +60,34 @@ TEST(SimulatorNoAlloc, WarmStepsThroughAFastPullAllocateNothing) {
 #endif
 }
 
+// Rewinding (the trainer's, a learning environment's reset): a snapshot taken into storage of the
+// same state's shape, and a restore, allocate nothing; nor do the steps after a restore.
+TEST(SimulatorNoAlloc, SnapshotIntoItsStorageAndRestoreAllocateNothing) {
+#ifdef VCSIM_SANITIZE
+  GTEST_SKIP() << "the sanitizer runtime owns operator new";
+#else
+  Simulator sim(test::jl4_with_j_wire(128, true));
+  StepCommands cmds = test::jl4_with_j_wire_commands();
+  auto run_to = [&](double t) {
+    while (sim.time() < t) {
+      cmds.drive[0].translation = std::min(0.120, 0.080 * sim.time());
+      cmds.drive[1].translation = std::min(0.140, 0.080 * sim.time() + 0.020);
+      sim.step(cmds);
+    }
+  };
+  run_to(0.5);
+  SimState snap = sim.snapshot();
+  run_to(1.0);
+  sim.restore(snap);
+  run_to(1.0);  // warm: the steps after a restore too
+  const long before = g_allocations.load();
+  snap = sim.state();
+  run_to(1.2);
+  sim.restore(snap);
+  run_to(1.2);
+  EXPECT_EQ(g_allocations.load() - before, 0);
+#endif
+}
+
 }  // namespace
 }  // namespace vcsim
