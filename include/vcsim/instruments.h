@@ -9,14 +9,57 @@
 #include "vcsim/rod.h"
 
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
 
 namespace vcsim {
 
-enum class InstrumentKind { kGuidewire, kCatheter };
+// kBalloon: a balloon dilatation catheter; kStent: a stent system (a stent crimped on the balloon
+// of its delivery catheter). Both ride on a coronary wire (rapid exchange) inside the guide.
+enum class InstrumentKind { kGuidewire, kCatheter, kBalloon, kStent };
 const char* to_string(InstrumentKind k);
+
+// The balloon of a balloon catheter or stent system, from the manufacturer's compliance chart.
+struct BalloonSpec {
+  enum class Compliance { kSemiCompliant, kNonCompliant };
+  Compliance compliance = Compliance::kSemiCompliant;
+  double nominal_diameter = 3.0e-3;       // (m) at nominal pressure, the labelled size
+  double length = 15e-3;                  // working length (m) at nominal pressure
+  double distal_offset = 4e-3;            // from the catheter's tip to the balloon's distal end (m)
+  double nominal_pressure = 8 * 101325.0;       // (Pa)
+  double rated_burst_pressure = 14 * 101325.0;  // (Pa)
+  double crossing_profile = 0.9e-3;  // outer diameter over the folded balloon (m)
+  double lengthening = 1.0e-3;       // working length gained from nominal to rated burst (m)
+  // The compliance chart: free diameter (m) at each gauge pressure (Pa), pressures strictly
+  // increasing from at most the nominal to at least the rated burst pressure, diameters
+  // non-decreasing; the nominal pressure gives the nominal diameter.
+  std::vector<double> chart_pressure;
+  std::vector<double> chart_diameter;
+
+  // Free (unconstrained) diameter at gauge pressure p (Pa): linear between the chart's entries,
+  // held at the last entry above it; below the first entry, linear from the crossing profile at 0
+  // (the folded balloon unfolds) to the first entry.
+  double diameter_at(double pressure) const;
+  // Working length at p: the nominal length, growing linearly by `lengthening` from nominal to
+  // rated burst pressure (held outside that range).
+  double length_at(double pressure) const;
+};
+
+// A balloon-expandable stent crimped on its delivery balloon.
+struct StentSpec {
+  double nominal_diameter = 3.0e-3;  // (m) expanded at the balloon's nominal pressure
+  double length = 15e-3;             // (m) expanded
+  double strut_thickness = 81e-6;    // (m)
+  std::string material;              // e.g. "cobalt-chromium"
+  double attenuation_60kev = 0.0;    // linear attenuation of the strut material (1/m)
+  double attenuation_80kev = 0.0;    // (1/m)
+  double metal_coverage = 0.15;      // fraction of the stent's surface that is strut (0, 1)
+  double acute_recoil = 0.05;        // fraction of the expanded diameter lost on deflation
+  double foreshortening = 0.0;       // fraction of the crimped length lost on expansion
+  double crimped_profile = 1.0e-3;   // outer diameter of the crimped stent on its balloon (m)
+};
 
 // Coulomb coefficients (dimensionless).
 struct InstrumentFriction {
@@ -53,6 +96,8 @@ struct InstrumentSpec {
   std::vector<TipSection> tip_shape;  // rest shape of the distal end, proximal to distal
   InstrumentFriction friction;
   InstrumentRadiopacity radiopacity;
+  std::optional<BalloonSpec> balloon;  // kBalloon and kStent (the delivery balloon)
+  std::optional<StentSpec> stent;      // kStent
 
   // Length of the shaped distal part (sum of the tip sections) (m).
   double shaped_length() const;
