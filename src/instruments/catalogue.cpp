@@ -1,6 +1,8 @@
 // Catalogue files -> InstrumentSpec (SI). Every field is checked here, once, with the file and
 // the field path in the message; the rest of the engine trusts the spec.
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
@@ -17,6 +19,8 @@ using internal::JsonFields;
 namespace {
 
 constexpr double kPerCm = 100.0;  // 1/cm -> 1/m
+// Rounding room (m) for tolerances written in mm, so that "within 0.05 mm" accepts 0.05 mm.
+constexpr double kSlack = 1e-12;
 
 bool valid_name(const std::string& s) {
   if (s.empty() || s.size() > 64) return false;
@@ -133,10 +137,172 @@ InstrumentRadiopacity parse_radiopacity(JsonFields r, double length) {
   return out;
 }
 
+std::string num(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
+// The compliance chart: [[pressure_atm, diameter_mm], ...], pressures strictly increasing,
+// diameters positive and non-decreasing (a balloon does not shrink as the pressure rises).
+void parse_chart(JsonFields& b, BalloonSpec& out) {
+  const Json& chart = b.array("chart");
+  const std::string field = b.field("chart");
+  if (chart.size() < 2) {
+    throw InputError(b.source(), field,
+                     "expected at least two [pressure_atm, diameter_mm] entries");
+  }
+  for (std::size_t i = 0; i < chart.size(); ++i) {
+    const std::string fi = internal::index_path(field, i);
+    const Json& e = chart[i];
+    if (!e.is_array() || e.size() != 2) {
+      throw InputError(
+          b.source(), fi,
+          internal::cat("expected [pressure_atm, diameter_mm], got ", internal::describe_json(e)));
+    }
+    const std::string fp = internal::index_path(fi, 0), fd = internal::index_path(fi, 1);
+    const double p = require_in_range(b.as_number(e[0], fp), 0.0, 50.0, b.source(), fp);
+    const double d = require_in_range(b.as_number(e[1], fd), 0.0, 10.0, b.source(), fd);
+    if (i > 0 && !(p * kAtm > out.chart_pressure.back())) {
+      throw InputError(b.source(), fp,
+                       internal::cat("expected a pressure above the previous entry's ",
+                                     num(out.chart_pressure.back() / kAtm),
+                                     " atm (strictly increasing), got ", num(p)));
+    }
+    if (i > 0 && d * kMm < out.chart_diameter.back()) {
+      throw InputError(b.source(), fd,
+                       internal::cat("expected at least the previous entry's ",
+                                     num(out.chart_diameter.back() / kMm),
+                                     " mm (diameters non-decreasing), got ", num(d)));
+    }
+    out.chart_pressure.push_back(p * kAtm);
+    out.chart_diameter.push_back(d * kMm);
+  }
+}
+
+// `shaft_length` (m) bounds where the balloon may sit.
+BalloonSpec parse_balloon(JsonFields b, double shaft_length) {
+  b.keys({"compliance", "nominal_diameter_mm", "length_mm", "distal_offset_mm",
+          "nominal_pressure_atm", "rated_burst_pressure_atm", "crossing_profile_mm",
+          "lengthening_at_rbp_mm", "chart", "comment"});
+  BalloonSpec out;
+  const std::string compliance = b.string("compliance");
+  if (compliance == "semi-compliant") {
+    out.compliance = BalloonSpec::Compliance::kSemiCompliant;
+  } else if (compliance == "non-compliant") {
+    out.compliance = BalloonSpec::Compliance::kNonCompliant;
+  } else {
+    b.fail("compliance", internal::cat("expected \"semi-compliant\" or \"non-compliant\", got \"",
+                                       compliance, "\""));
+  }
+  out.nominal_diameter = b.in_range("nominal_diameter_mm", 0.0, 10.0) * kMm;
+  out.length = b.in_range("length_mm", 0.0, 100.0) * kMm;
+  out.distal_offset = b.nonnegative("distal_offset_mm") * kMm;
+  if (out.distal_offset + out.length > shaft_length) {
+    b.fail("distal_offset_mm",
+           "expected the balloon (distal_offset_mm + length_mm) within the shaft's length_mm");
+  }
+  out.nominal_pressure = b.in_range("nominal_pressure_atm", 0.0, 50.0) * kAtm;
+  out.rated_burst_pressure = b.in_range("rated_burst_pressure_atm", 0.0, 50.0) * kAtm;
+  if (!(out.rated_burst_pressure > out.nominal_pressure)) {
+    b.fail("rated_burst_pressure_atm", internal::cat("expected more than nominal_pressure_atm (",
+                                                     num(out.nominal_pressure / kAtm), " atm)"));
+  }
+  out.crossing_profile = b.in_range("crossing_profile_mm", 0.0, 10.0) * kMm;
+  out.lengthening = b.nonnegative("lengthening_at_rbp_mm") * kMm;
+  if (out.lengthening > out.length) b.fail("lengthening_at_rbp_mm", "expected at most length_mm");
+
+  parse_chart(b, out);
+  const std::string chart = b.field("chart");
+  const std::size_t last = out.chart_pressure.size() - 1;
+  if (out.chart_pressure.front() > out.nominal_pressure) {
+    const std::string f = internal::index_path(internal::index_path(chart, 0), 0);
+    throw InputError(b.source(), f,
+                     internal::cat("expected the first pressure at most nominal_pressure_atm (",
+                                   num(out.nominal_pressure / kAtm), " atm)"));
+  }
+  if (out.chart_pressure.back() < out.rated_burst_pressure) {
+    const std::string f = internal::index_path(internal::index_path(chart, last), 0);
+    throw InputError(b.source(), f,
+                     internal::cat("expected the last pressure at least rated_burst_pressure_atm (",
+                                   num(out.rated_burst_pressure / kAtm), " atm)"));
+  }
+  if (out.crossing_profile > out.chart_diameter.front()) {
+    b.fail("crossing_profile_mm",
+           internal::cat("expected at most the chart's first diameter (",
+                         num(out.chart_diameter.front() / kMm),
+                         " mm): the folded balloon only grows as it unfolds"));
+  }
+  // The chart must carry the label: its nominal pressure gives its nominal diameter.
+  const double at_nominal = out.diameter_at(out.nominal_pressure);
+  if (std::abs(at_nominal - out.nominal_diameter) > 0.01 * out.nominal_diameter + kSlack) {
+    b.fail("chart",
+           internal::cat("expected ", num(out.nominal_diameter / kMm),
+                         " mm at nominal_pressure_atm (within 1 % of nominal_diameter_mm), got ",
+                         num(at_nominal / kMm), " mm"));
+  }
+  b.finish();
+  return out;
+}
+
+// A stent crimped on `balloon`: the same labelled diameter, no longer than the balloon.
+StentSpec parse_stent(JsonFields t, const BalloonSpec& balloon) {
+  t.keys({"nominal_diameter_mm", "length_mm", "strut_thickness_um", "material",
+          "attenuation_60kev_per_cm", "attenuation_80kev_per_cm", "metal_coverage", "acute_recoil",
+          "foreshortening", "crimped_profile_mm", "comment"});
+  StentSpec out;
+  out.nominal_diameter = t.in_range("nominal_diameter_mm", 0.0, 10.0) * kMm;
+  if (std::abs(out.nominal_diameter - balloon.nominal_diameter) > 0.05 * kMm + kSlack) {
+    t.fail("nominal_diameter_mm",
+           internal::cat("expected the delivery balloon's nominal diameter (",
+                         num(balloon.nominal_diameter / kMm), " mm, within 0.05 mm)"));
+  }
+  out.length = t.in_range("length_mm", 0.0, 100.0) * kMm;
+  if (out.length > balloon.length) {
+    t.fail("length_mm", internal::cat("expected at most the balloon's length_mm (",
+                                      num(balloon.length / kMm), " mm)"));
+  }
+  out.strut_thickness = t.in_range("strut_thickness_um", 0.0, 1000.0) * kUm;
+  out.material = t.string("material");
+  if (out.material.empty()) t.fail("material", "expected a material name");
+  out.attenuation_60kev = t.nonnegative("attenuation_60kev_per_cm") * kPerCm;
+  out.attenuation_80kev = t.nonnegative("attenuation_80kev_per_cm") * kPerCm;
+  out.metal_coverage = t.number("metal_coverage");
+  if (!(out.metal_coverage > 0.0 && out.metal_coverage < 1.0)) {
+    t.fail("metal_coverage", "expected a fraction in (0, 1)");
+  }
+  for (auto [key, dst] : {std::pair{"acute_recoil", &out.acute_recoil},
+                          std::pair{"foreshortening", &out.foreshortening}}) {
+    *dst = t.number(key);
+    if (!(*dst >= 0.0 && *dst < 1.0)) t.fail(key, "expected a fraction in [0, 1)");
+  }
+  out.crimped_profile = t.in_range("crimped_profile_mm", 0.0, 10.0) * kMm;
+  if (!(out.crimped_profile > balloon.crossing_profile)) {
+    t.fail("crimped_profile_mm",
+           internal::cat("expected more than the balloon's crossing_profile_mm (",
+                         num(balloon.crossing_profile / kMm), " mm): the stent is crimped on it"));
+  }
+  if (!(out.crimped_profile < out.nominal_diameter)) {
+    t.fail("crimped_profile_mm", "expected less than nominal_diameter_mm");
+  }
+  t.finish();
+  return out;
+}
+
 }  // namespace
 
 const char* to_string(InstrumentKind k) {
-  return k == InstrumentKind::kGuidewire ? "guidewire" : "catheter";
+  switch (k) {
+    case InstrumentKind::kGuidewire:
+      return "guidewire";
+    case InstrumentKind::kCatheter:
+      return "catheter";
+    case InstrumentKind::kBalloon:
+      return "balloon";
+    case InstrumentKind::kStent:
+      return "stent";
+  }
+  return "unknown";
 }
 
 double InstrumentSpec::shaped_length() const {
@@ -169,8 +335,14 @@ InstrumentSpec parse_instrument(std::string_view json_text, const std::string& s
     s.kind = InstrumentKind::kGuidewire;
   } else if (kind == "catheter") {
     s.kind = InstrumentKind::kCatheter;
+  } else if (kind == "balloon") {
+    s.kind = InstrumentKind::kBalloon;
+  } else if (kind == "stent") {
+    s.kind = InstrumentKind::kStent;
   } else {
-    f.fail("kind", internal::cat("expected \"guidewire\" or \"catheter\", got \"", kind, "\""));
+    f.fail("kind",
+           internal::cat("expected \"guidewire\", \"catheter\", \"balloon\" or \"stent\", got \"",
+                         kind, "\""));
   }
 
   s.length = f.in_range("length_mm", 0.0, 5000.0) * kMm;
@@ -178,8 +350,10 @@ InstrumentSpec parse_instrument(std::string_view json_text, const std::string& s
       one_of(f, {{"od_in", kInch}, {"od_fr", kFrench}, {"od_mm", kMm}}, true, 0.0, 10.0e-3);
   s.inner_diameter = one_of(f, {{"id_in", kInch}, {"id_mm", kMm}}, false, -1e-300, 10.0e-3);
   const char* id_key = f.has("id_in") ? "id_in" : "id_mm";
-  if (s.kind == InstrumentKind::kCatheter && !(s.inner_diameter > 0.0)) {
-    f.fail(id_key, "expected a positive inner diameter (id_mm or id_in) for a catheter");
+  // Every kind but a wire has a lumen; a balloon or stent catheter's is its wire lumen.
+  if (s.kind != InstrumentKind::kGuidewire && !(s.inner_diameter > 0.0)) {
+    f.fail(id_key, internal::cat("expected a positive inner diameter (id_mm or id_in) for a ",
+                                 to_string(s.kind)));
   }
   if (s.inner_diameter >= s.outer_diameter) {
     f.fail(id_key, "expected an inner diameter less than the outer diameter");
@@ -203,6 +377,28 @@ InstrumentSpec parse_instrument(std::string_view json_text, const std::string& s
 
   s.friction = parse_friction(f.object("friction"));
   s.radiopacity = parse_radiopacity(f.object("radiopacity"), s.length);
+
+  // A balloon catheter carries a balloon, a stent system a stent on its delivery balloon; wires
+  // and plain catheters carry neither.
+  const bool has_balloon = f.has("balloon"), has_stent = f.has("stent");
+  const bool wants_balloon = s.kind == InstrumentKind::kBalloon || s.kind == InstrumentKind::kStent;
+  const bool wants_stent = s.kind == InstrumentKind::kStent;
+  if (has_balloon != wants_balloon) {
+    f.fail("balloon", wants_balloon
+                          ? internal::cat("expected this section for kind \"", kind,
+                                          s.kind == InstrumentKind::kStent
+                                              ? "\" (a stent comes mounted on its balloon)"
+                                              : "\"")
+                          : internal::cat("expected no balloon on a ", kind,
+                                          " (kind \"balloon\" or \"stent\" carries one)"));
+  }
+  if (has_stent != wants_stent) {
+    f.fail("stent", wants_stent ? std::string("expected this section for kind \"stent\"")
+                                : internal::cat("expected no stent on a ", kind,
+                                                " (a stent system is kind \"stent\")"));
+  }
+  if (has_balloon) s.balloon = parse_balloon(f.object("balloon"), s.length);
+  if (has_stent) s.stent = parse_stent(f.object("stent"), *s.balloon);
   f.finish();
   return s;
 }

@@ -145,7 +145,7 @@ TEST(CatalogueErrors, NameFileAndField) {
        "tip_sections[2].arc.radius_mm", "expected a positive number, got -3"},
       {"typo key", [](json& j) { j["lenght_mm"] = 1; }, "lenght_mm", "unknown key"},
       {"missing kind", [](json& j) { j.erase("kind"); }, "kind", "required"},
-      {"unknown kind", [](json& j) { j["kind"] = "stent"; }, "kind", "guidewire"},
+      {"unknown kind", [](json& j) { j["kind"] = "snare"; }, "kind", "\"balloon\" or \"stent\""},
       {"two ODs", [](json& j) { j["od_fr"] = 3; }, "od_fr", "only one of"},
       {"no OD", [](json& j) { j.erase("od_in"); }, "od_in, od_fr, od_mm", "one of"},
       {"string for number", [](json& j) { j["length_mm"] = "1500"; }, "length_mm",
@@ -200,6 +200,209 @@ TEST(CatalogueErrors, NameFileAndField) {
   }
 }
 
+// A semi-compliant 3.0 x 15 mm balloon catheter (nominal 6 atm, rated burst 14 atm) and the
+// same catheter carrying a 3.0 x 14 mm stent.
+json valid_balloon() {
+  json j = valid_wire();
+  j["kind"] = "balloon";
+  j["id_in"] = 0.017;
+  j["radiopacity"]["markers_mm_from_tip"] = {4, 19};
+  j["balloon"] = json::parse(R"({
+    "compliance": "semi-compliant", "nominal_diameter_mm": 3.0, "length_mm": 15,
+    "distal_offset_mm": 4, "nominal_pressure_atm": 6, "rated_burst_pressure_atm": 14,
+    "crossing_profile_mm": 0.8, "lengthening_at_rbp_mm": 0.9,
+    "chart": [[4, 2.89], [6, 3.0], [8, 3.11], [10, 3.23], [12, 3.34], [14, 3.45]]
+  })");
+  return j;
+}
+
+json valid_stent() {
+  json j = valid_balloon();
+  j["kind"] = "stent";
+  j["stent"] = json::parse(R"({
+    "nominal_diameter_mm": 3.0, "length_mm": 14, "strut_thickness_um": 81,
+    "material": "cobalt-chromium", "attenuation_60kev_per_cm": 14.8,
+    "attenuation_80kev_per_cm": 15.4, "metal_coverage": 0.15, "acute_recoil": 0.05,
+    "foreshortening": 0.0, "crimped_profile_mm": 0.99
+  })");
+  return j;
+}
+
+TEST(CatalogueErrors, ValidBalloonAndStentParse) {
+  EXPECT_EQ(error_of(valid_balloon()), "");
+  EXPECT_EQ(error_of(valid_stent()), "");
+  // At the edges of the tolerances: the chart 0.97 % off the label; the stent 0.05 mm off its
+  // balloon and as long as it.
+  json j = valid_balloon();
+  j["balloon"]["nominal_diameter_mm"] = 3.029;
+  EXPECT_EQ(error_of(j), "");
+  j = valid_stent();
+  j["stent"]["nominal_diameter_mm"] = 3.05;
+  j["stent"]["length_mm"] = 15;
+  EXPECT_EQ(error_of(j), "");
+  const InstrumentSpec s = vcsim::parse_instrument(valid_stent().dump(), "bad.json", "bad");
+  ASSERT_TRUE(s.balloon && s.stent);
+  EXPECT_DOUBLE_EQ(s.balloon->rated_burst_pressure, 14 * 101325.0);
+  EXPECT_DOUBLE_EQ(s.balloon->chart_diameter[5], 3.45e-3);
+  EXPECT_DOUBLE_EQ(s.stent->strut_thickness, 81e-6);
+  EXPECT_DOUBLE_EQ(s.stent->attenuation_80kev, 1540.0);
+  // A balloon or stent catheter is a rod like any catheter.
+  const vcsim::RodDef def = vcsim::to_rod_def(s);
+  EXPECT_DOUBLE_EQ(def.inner_radius, 0.5 * 0.017 * 25.4e-3);
+}
+
+TEST(CatalogueErrors, BalloonAndStentNameFileAndField) {
+  const std::vector<BadCase> cases = {
+      // Which kinds carry which sections.
+      {"balloon kind without balloon", [](json& j) { j.erase("balloon"); }, "balloon",
+       "expected this section for kind \"balloon\""},
+      {"wire with a balloon", [](json& j) { j["kind"] = "guidewire"; }, "balloon",
+       "no balloon on a guidewire"},
+      {"catheter with a stent",
+       [](json& j) {
+         j = valid_stent();
+         j["kind"] = "catheter";
+         j.erase("balloon");
+       },
+       "stent", "no stent on a catheter"},
+      {"stent on a balloon kind",
+       [](json& j) {
+         j = valid_stent();
+         j["kind"] = "balloon";
+       },
+       "stent", "a stent system is kind \"stent\""},
+      {"stent kind without stent", [](json& j) { j["kind"] = "stent"; }, "stent",
+       "expected this section for kind \"stent\""},
+      {"stent without its balloon",
+       [](json& j) {
+         j = valid_stent();
+         j.erase("balloon");
+       },
+       "balloon", "mounted on its balloon"},
+      {"balloon without wire lumen", [](json& j) { j.erase("id_in"); }, "id_mm",
+       "positive inner diameter (id_mm or id_in) for a balloon"},
+      // The balloon's own fields.
+      {"balloon typo", [](json& j) { j["balloon"]["nominal_diameter"] = 3; },
+       "balloon.nominal_diameter", "unknown key"},
+      {"compliance", [](json& j) { j["balloon"]["compliance"] = "compliant"; },
+       "balloon.compliance", "\"semi-compliant\" or \"non-compliant\""},
+      {"rated burst not above nominal",
+       [](json& j) { j["balloon"]["rated_burst_pressure_atm"] = 6; },
+       "balloon.rated_burst_pressure_atm", "more than nominal_pressure_atm (6 atm)"},
+      {"balloon beyond the shaft", [](json& j) { j["balloon"]["distal_offset_mm"] = 1490; },
+       "balloon.distal_offset_mm", "within the shaft's length_mm"},
+      {"lengthening negative", [](json& j) { j["balloon"]["lengthening_at_rbp_mm"] = -1; },
+       "balloon.lengthening_at_rbp_mm", ">= 0"},
+      {"crossing profile above the chart",
+       [](json& j) { j["balloon"]["crossing_profile_mm"] = 2.95; }, "balloon.crossing_profile_mm",
+       "at most the chart's first diameter (2.89 mm)"},
+      // The chart.
+      {"chart missing", [](json& j) { j["balloon"].erase("chart"); }, "balloon.chart", "required"},
+      {"chart of one entry",
+       [](json& j) {
+         j["balloon"]["chart"] = {{6, 3.0}};
+       },
+       "balloon.chart", "at least two"},
+      {"chart entry not a pair", [](json& j) { j["balloon"]["chart"][1] = {6}; },
+       "balloon.chart[1]", "expected [pressure_atm, diameter_mm], got [6]"},
+      {"chart pressure text", [](json& j) { j["balloon"]["chart"][0][0] = "4"; },
+       "balloon.chart[0][0]", "expected a number"},
+      {"chart pressures repeat", [](json& j) { j["balloon"]["chart"][2][0] = 6; },
+       "balloon.chart[2][0]", "above the previous entry's 6 atm (strictly increasing)"},
+      {"chart pressures fall", [](json& j) { j["balloon"]["chart"][4][0] = 9; },
+       "balloon.chart[4][0]", "strictly increasing"},
+      {"chart diameters fall", [](json& j) { j["balloon"]["chart"][3][1] = 3.05; },
+       "balloon.chart[3][1]", "at least the previous entry's 3.11 mm (diameters non-decreasing)"},
+      {"chart diameter zero", [](json& j) { j["balloon"]["chart"][0][1] = 0; },
+       "balloon.chart[0][1]", "expected a value in (0, 10]"},
+      {"chart starts above nominal", [](json& j) { j["balloon"]["nominal_pressure_atm"] = 3; },
+       "balloon.chart[0][0]", "first pressure at most nominal_pressure_atm (3 atm)"},
+      {"chart short of rated burst", [](json& j) { j["balloon"]["rated_burst_pressure_atm"] = 16; },
+       "balloon.chart[5][0]", "last pressure at least rated_burst_pressure_atm (16 atm)"},
+      {"chart misses the label", [](json& j) { j["balloon"]["nominal_diameter_mm"] = 3.05; },
+       "balloon.chart",
+       "expected 3.05 mm at nominal_pressure_atm (within 1 % of "
+       "nominal_diameter_mm), got 3 mm"},
+      // The stent.
+      {"stent of another size",
+       [](json& j) {
+         j = valid_stent();
+         j["stent"]["nominal_diameter_mm"] = 3.5;
+       },
+       "stent.nominal_diameter_mm",
+       "the delivery balloon's nominal diameter (3 mm, within 0.05 mm)"},
+      {"stent longer than its balloon",
+       [](json& j) {
+         j = valid_stent();
+         j["stent"]["length_mm"] = 18;
+       },
+       "stent.length_mm", "at most the balloon's length_mm (15 mm)"},
+      {"stent typo",
+       [](json& j) {
+         j = valid_stent();
+         j["stent"]["strut_um"] = 81;
+       },
+       "stent.strut_um", "unknown key"},
+      {"stent struts missing",
+       [](json& j) {
+         j = valid_stent();
+         j["stent"].erase("strut_thickness_um");
+       },
+       "stent.strut_thickness_um", "required"},
+      {"metal coverage",
+       [](json& j) {
+         j = valid_stent();
+         j["stent"]["metal_coverage"] = 1.2;
+       },
+       "stent.metal_coverage", "(0, 1)"},
+      {"recoil negative",
+       [](json& j) {
+         j = valid_stent();
+         j["stent"]["acute_recoil"] = -0.1;
+       },
+       "stent.acute_recoil", "[0, 1)"},
+      {"foreshortening whole",
+       [](json& j) {
+         j = valid_stent();
+         j["stent"]["foreshortening"] = 1;
+       },
+       "stent.foreshortening", "[0, 1)"},
+      {"stent attenuation negative",
+       [](json& j) {
+         j = valid_stent();
+         j["stent"]["attenuation_80kev_per_cm"] = -1;
+       },
+       "stent.attenuation_80kev_per_cm", ">= 0"},
+      {"crimped inside the folded balloon",
+       [](json& j) {
+         j = valid_stent();
+         j["stent"]["crimped_profile_mm"] = 0.7;
+       },
+       "stent.crimped_profile_mm", "more than the balloon's crossing_profile_mm (0.8 mm)"},
+      {"crimped wider than expanded",
+       [](json& j) {
+         j = valid_stent();
+         j["stent"]["crimped_profile_mm"] = 3.2;
+       },
+       "stent.crimped_profile_mm", "less than nominal_diameter_mm"},
+      {"markers beyond the shaft",
+       [](json& j) {
+         j["radiopacity"]["markers_mm_from_tip"] = {4, 1600};
+       },
+       "radiopacity.markers_mm_from_tip[1]", "at most length_mm"},
+  };
+  for (const auto& c : cases) {
+    json doc = valid_balloon();
+    c.edit(doc);
+    const std::string err = error_of(doc);
+    std::string prefix = "data/instruments/bad.json: ";
+    prefix += c.field;
+    prefix += ": ";
+    EXPECT_EQ(err.rfind(prefix, 0), 0u) << c.label << " -> " << err;
+    EXPECT_NE(err.find(c.expected), std::string::npos) << c.label << " -> " << err;
+  }
+}
+
 TEST(CatalogueErrors, SyntaxErrorNamesTheFile) {
   try {
     vcsim::parse_instrument("{\"name\": ", "data/instruments/x.json");
@@ -224,7 +427,7 @@ TEST(CatalogueErrors, HostileJsonIsAnInputError) {
     return "accepted";
   };
   const std::string ok = valid_wire().dump();  // {"density_kg_m3":6450,...,"youngs_modulus_gpa":10}
-  const std::string rest = ok.substr(1);      // the document after its opening brace
+  const std::string rest = ok.substr(1);       // the document after its opening brace
   const std::string deep = std::string(100000, '[') + std::string(100000, ']');
   ASSERT_EQ(field_of(ok), "accepted");
   EXPECT_EQ(field_of(deep), "json");
