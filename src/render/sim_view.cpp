@@ -18,7 +18,7 @@ InstrumentVisual instrument_visual(const InstrumentSpec& spec, const std::string
                ? static_cast<float>(std::min(1.0, mu / attenuation_per_m(m, BeamEnergy::k60keV)))
                : 1.0f;
   };
-  v.shaft = spec.kind == InstrumentKind::kCatheter || r.material != "nitinol"
+  v.shaft = spec.kind != InstrumentKind::kGuidewire || r.material != "nitinol"
                 ? XrayMaterial::kSteel  // a catheter's braid and filled polymer, or a steel core
                 : XrayMaterial::kNitinol;
   v.shaft_fill = fill(r.attenuation_60kev, v.shaft);
