@@ -28,14 +28,17 @@ vcsim::InstrumentCatalogue shipped() {
 
 TEST(Catalogue, ShipsTheInstrumentsTheIssueAsksFor) {
   const auto cat = shipped();
-  int wires = 0, catheters = 0;
-  for (const auto& s : cat.items) (s.kind == InstrumentKind::kGuidewire ? wires : catheters)++;
-  EXPECT_GE(wires, 6);
-  EXPECT_GE(catheters, 3);
+  int count[4] = {};
+  for (const auto& s : cat.items) ++count[static_cast<int>(s.kind)];
+  EXPECT_GE(count[static_cast<int>(InstrumentKind::kGuidewire)], 6);
+  EXPECT_GE(count[static_cast<int>(InstrumentKind::kCatheter)], 3);
+  EXPECT_GE(count[static_cast<int>(InstrumentKind::kBalloon)], 9);  // issue 25: 5 SC, 4 NC
+  EXPECT_GE(count[static_cast<int>(InstrumentKind::kStent)], 3);
   for (const char* name :
        {"wire-035-j3-hydrophilic", "wire-035-angled-hydrophilic", "wire-035-stiff-exchange",
         "wire-014-floppy", "wire-014-intermediate", "wire-018-support", "catheter-jl4-6f",
-        "catheter-jr4-6f", "catheter-al2-6f"}) {
+        "catheter-jr4-6f", "catheter-al2-6f", "balloon-sc-2.0x12", "balloon-sc-4.0x30",
+        "balloon-nc-4.0x8", "stent-cocr-2.5x15", "stent-cocr-3.5x23"}) {
     EXPECT_NE(cat.find(name), nullptr) << name;
   }
   // Sorted by name, names unique.
