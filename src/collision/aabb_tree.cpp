@@ -203,7 +203,10 @@ double vertex_angle(const Vec3& at, const Vec3& p, const Vec3& q) {
 
   // Inside/outside from the closest feature's pseudo-normal (Baerentzen and Aanaes, IEEE TVCG
   // 2005): a face's own normal, the sum over the faces of an edge, the angle-weighted sum at a
-  // vertex. Triangles closer than the current best by more than `tie` restart the sum.
+  // vertex. Triangles closer than the current best by more than `tie` restart the sum; those as
+  // close join it only at the same point (the faces of one edge or vertex): a centre equally far
+  // from distinct features (on the axis of a perfectly round tube) would otherwise sum their
+  // opposite normals to nothing and read as outside.
   const double tie = 1e-12 + 1e-10 * d;
   if (d < acc.d_min - tie) {
     acc.d_min = d;
@@ -211,7 +214,7 @@ double vertex_angle(const Vec3& at, const Vec3& p, const Vec3& q) {
     acc.triangle = t;
     acc.pseudo_normal.setZero();
   }
-  if (d <= acc.d_min + tie) {
+  if (d <= acc.d_min + tie && (cp.point - acc.point).squaredNorm() <= tie * tie) {
     double w = 1.0;
     switch (cp.region) {
       case TriangleRegion::kVertexA:
@@ -443,8 +446,12 @@ void SphereContactMerge::add(const SphereContact& part, int triangle) {
   // The parts' closest features tie when they are one seam vertex or edge: the same tolerance
   // as between the triangles of one query.
   const double tie = 1e-12 + 1e-10 * d;
-  if (d < d_min_ - tie) side_ = Vec3::Zero();
-  if (d <= d_min_ + tie) {
+  if (d < d_min_ - tie) {
+    side_ = Vec3::Zero();
+    point_ = part.point;
+  }
+  // As within one query: only the same point's faces (a seam vertex or edge) join.
+  if (d <= d_min_ + tie && (part.point - point_).squaredNorm() <= tie * tie) {
     side_ += part.side_sum;
     if (d < d_min_) {
       d_min_ = d;
