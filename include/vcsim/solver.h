@@ -67,6 +67,9 @@ struct NodeContact {
   Vec3 lambda_t = Vec3::Zero();       // accumulated friction impulse (N s)
   Vec3 wall_velocity = Vec3::Zero();  // of the wall at the contact (m/s)
   double lambda_bias = 0.0;  // part of lambda_n taken back after the step (penetration fix-up)
+  // Normal impulse (N s) pressing the node on the wall besides the contact's own, for friction
+  // only: an inflated balloon's pressure on the vessel (BalloonHold), which anchors it.
+  double preload = 0.0;
 };
 
 // One wire node held inside the outer instrument's lumen in the last step (concentric
@@ -105,6 +108,9 @@ struct InstrumentModel {
 // are held within the clearance (ID - wire OD) / 2 by impulses perpendicular to the catheter,
 // shared by the two nearest catheter nodes in proportion to their distance (VCSim3's concentric
 // constraints), with optional lumen friction; they skip the wall collision.
+// An inner instrument may be inside several outer ones (a wire in a balloon catheter that is in
+// a guide): its couplings are listed innermost outer first, and each node is held by the first
+// whose inserted length covers it.
 struct CouplingModel {
   int inner = 0;
   int outer = 1;
@@ -163,7 +169,8 @@ struct SolverModel {
   double dt() const { return settings[0].rod.dt; }
   int max_split() const { return static_cast<int>(settings.size()); }
   // Checks sizes and indices (every instrument has max_split() rods; couplings name two
-  // different instruments, each inner at most once) and every setting; throws InputError.
+  // different instruments, no pair twice; an inner's outers innermost first, each inside the
+  // next) and every setting; throws InputError.
   void validate(const std::string& source = "solver") const;
   // FNV-1a over every value that the step reads (tests assert that a run never changes it).
   std::uint64_t hash() const;
@@ -185,6 +192,21 @@ void make_quasi_static(SolverModel& model, int max_split);
 // ---------------------------------------------------------------------------------------------
 // State
 
+// A balloon inflated on an instrument, set before each step (by the procedure, from the vessel
+// and the balloon's pressure): nodes first .. last are held within `play` of the vessel's axis
+// instead of meeting the wall, and their friction with the wall carries the balloon's pressure
+// on it (NodeContact::preload), which anchors an inflated balloon (physics.md 8).
+struct BalloonHold {
+  int first = 0, last = -1;         // held nodes (none when last < first)
+  std::vector<Vec3> axis;           // (n) the vessel's centreline point at each held node (m)
+  std::vector<Vec3> tangent;        // (n) the centreline's direction there
+  std::vector<Vec3> axis_velocity;  // (n) the vessel's velocity there (m/s)
+  std::vector<double> play;         // (n) how far the node may be from the axis (m)
+  std::vector<double> wall_load;    // (n) the balloon's pressure on the wall around the node (N)
+  bool active() const { return last >= first; }
+  void clear() { last = first - 1; }
+};
+
 // Everything of an instrument that changes during a run.
 struct InstrumentState {
   RodState rod;
@@ -198,6 +220,7 @@ struct InstrumentState {
   std::vector<Vec3> query_centre;  // (n)
   std::vector<double> clearance;   // (n)
   double wall_travel = 0.0;        // m
+  BalloonHold hold;                // (sized n when a balloon is inflated)
 };
 
 // A driven instrument lying straight on the sheath axis with `depth` (m) inserted and the hand
@@ -260,6 +283,9 @@ class SolverWorkspace {
   double coupling_clearance(int coupling) const;
   // True when the node lay in another instrument's lumen in the last fine step (no wall query).
   bool sheathed(int instrument, int node) const;
+
+  // Forgets what the leaf caches know of the wall (after the wall changed shape).
+  void clear_caches();
 
   internal::SolverScratch& scratch() { return *s_; }
   const internal::SolverScratch& scratch() const { return *s_; }

@@ -109,45 +109,59 @@ void solve_reactions(const Vec3& r_perp, const Vec3& t, const Candidates& c, int
 // the s >= 0 that leaves Q_{i-1} - P_{i-1} closest to edge i-1's direction (a tension); what no
 // reaction can balance stays in Q, so the result is the sum of the loads and these reactions, the
 // boundary force of the part in equilibrium. Gaps the step did not close get no reaction.
-// `pair`/`outer`: the coupling holding this rod in another's lumen (or null); the outer rod
-// receives the reactions as loads (InstrumentScratch::felt_load). Returns Q at the boundary edge,
-// the force the inserted part exerts on the held part.
-Vec3 quasi_static_force(const Inst& in, const Pair* pair, const Inst* outer,
+// `self`: this rod's index; the couplings holding it in other rods' lumens are those of
+// `couplings` whose inner it is (an outer parked is skipped); each outer rod receives the
+// reactions as loads (InstrumentScratch::felt_load). An inflated balloon's contacts
+// (NodeContact::preload) are anchored by friction the shape cannot decide: their own friction
+// reaction is a load. Returns Q at the boundary edge, the force the inserted part exerts on the
+// held part.
+Vec3 quasi_static_force(std::span<Inst> insts, std::size_t self, std::span<const Pair> couplings,
                         const SolverSettings& set) {
+  const Inst& in = insts[self];
   const RodModel& md = in.model();
   const RodState& st = in.rod();
   InstrumentScratch& w = *in.w;
   const double dt = set.rod.dt;
-  const std::vector<CoaxialContact>* coax = pair ? &pair->s->contacts : nullptr;
-  const double lumen_mu = pair ? pair->cm->mu : 0.0;
   std::fill(w.wall_contact_of.begin(), w.wall_contact_of.end(), -1);
   for (int k = 0; k < static_cast<int>(w.contacts.size()); ++k)
     w.wall_contact_of[w.contacts[k].node] = k;
   std::fill(w.coupling_of.begin(), w.coupling_of.end(), -1);
   std::fill(w.rim_of.begin(), w.rim_of.end(), -1);
-  if (coax)
-    for (int k = 0; k < static_cast<int>(coax->size()); ++k)
-      ((*coax)[k].a > 0.0 ? w.rim_of : w.coupling_of)[(*coax)[k].node] = k;
+  for (std::size_t pi = 0; pi < couplings.size(); ++pi) {
+    const Pair& pair = couplings[pi];
+    if (static_cast<std::size_t>(pair.cm->inner) != self || insts[pair.cm->outer].parked())
+      continue;
+    const std::vector<CoaxialContact>& coax = pair.s->contacts;
+    for (int k = 0; k < static_cast<int>(coax.size()); ++k) {
+      const bool rim = coax[k].a > 0.0;
+      (rim ? w.rim_of : w.coupling_of)[coax[k].node] = k;
+      (rim ? w.rim_pair : w.coupling_pair)[coax[k].node] = static_cast<int>(pi);
+    }
+  }
   // A reaction candidate: direction d (the normal less mu times the regularised sliding
   // direction), the step's own normal reaction (N), and the lumen or rim contact it belongs to.
   struct Candidate {
     Vec3 d;
     double heavy;
     const CoaxialContact* cc;
+    const Inst* outer;
   };
   auto make = [&](const Vec3& n, const Vec3& v_rel, double mu, double heavy,
-                  const CoaxialContact* cc) {
+                  const CoaxialContact* cc, const Inst* outer) {
     const Vec3 vt = v_rel - v_rel.dot(n) * n;
-    return Candidate{n - (mu / std::max(vt.norm(), kSlipSpeed)) * vt, heavy, cc};
+    return Candidate{n - (mu / std::max(vt.norm(), kSlipSpeed)) * vt, heavy, cc, outer};
   };
-  // A lumen or rim contact; false for a gap the step did not close.
-  auto coaxial = [&](const CoaxialContact& c, Candidate& out) {
+  // A lumen or rim contact of coupling `pi`; false for a gap the step did not close.
+  auto coaxial = [&](int pi, int k, Candidate& out) {
+    const Pair& pair = couplings[static_cast<std::size_t>(pi)];
+    const CoaxialContact& c = pair.s->contacts[static_cast<std::size_t>(k)];
     if (c.lambda_n <= 0.0) return false;
+    const Inst* outer = &insts[pair.cm->outer];
     Vec3 v_in = st.v[c.node];
     if (c.a > 0.0) v_in = (1 - c.a) * v_in + c.a * st.v[c.node + 1];
     const Vec3 v_out = (1 - c.t) * outer->rod().v[c.segment] + c.t * outer->rod().v[c.segment + 1];
     // The catheter pushes the wire back toward its centreline (or off its rim).
-    out = make(-c.normal, v_in - v_out, lumen_mu, c.lambda_n / dt, &c);
+    out = make(-c.normal, v_in - v_out, pair.cm->mu, c.lambda_n / dt, &c, outer);
     return true;
   };
   // Node i's reactions: its wall or lumen contact, and the rim's where edge i leaves the outer
@@ -157,12 +171,13 @@ Vec3 quasi_static_force(const Inst& in, const Pair* pair, const Inst* outer,
     if (const int wc = w.wall_contact_of[i]; wc >= 0) {
       const NodeContact& c = w.contacts[wc];
       if (c.lambda_n > 0.0 || c.depth > 0.0)
-        out[k++] = make(c.normal, st.v[i] - c.wall_velocity, in.im->contact.mu_dynamic,
-                        (c.lambda_n - c.lambda_bias) / dt, nullptr);
-    } else if (const int c = w.coupling_of[i]; c >= 0 && coaxial((*coax)[c], out[k])) {
+        out[k++] = make(c.normal, st.v[i] - c.wall_velocity,
+                        c.preload > 0.0 ? 0.0 : in.im->contact.mu_dynamic,
+                        (c.lambda_n - c.lambda_bias) / dt, nullptr, nullptr);
+    } else if (const int c = w.coupling_of[i]; c >= 0 && coaxial(w.coupling_pair[i], c, out[k])) {
       ++k;
     }
-    if (const int r = w.rim_of[i]; r >= 0 && coaxial((*coax)[r], out[k])) ++k;
+    if (const int r = w.rim_of[i]; r >= 0 && coaxial(w.rim_pair[i], r, out[k])) ++k;
     return k;
   };
   Vec3 q = Vec3::Zero();  // Q_i: the internal force of the edge distal to node i (none at the tip)
@@ -172,6 +187,9 @@ Vec3 quasi_static_force(const Inst& in, const Pair* pair, const Inst* outer,
   std::array<double, 2> s{};
   for (int i = md.n - 1; i >= first; --i) {
     q += st.f_ext[i] + md.node_mass[i] * set.rod.gravity + w.felt_load[i];
+    // An anchored balloon's friction on the wall, as the step applied it.
+    if (const int wc = w.wall_contact_of[i]; wc >= 0 && w.contacts[wc].preload > 0.0)
+      q += w.contacts[wc].lambda_t / dt;
     const Vec3 e = st.x[i] - st.x[i - 1];
     const double len = e.norm();
     if (len < 1e-12) {
@@ -209,8 +227,8 @@ Vec3 quasi_static_force(const Inst& in, const Pair* pair, const Inst* outer,
       const Vec3 reaction = s[k] * cand[k].d;
       q += reaction;
       if (const CoaxialContact* c = cand[k].cc) {
-        outer->w->felt_load[c->segment] -= (1 - c->t) * reaction;
-        outer->w->felt_load[c->segment + 1] -= c->t * reaction;
+        cand[k].outer->w->felt_load[c->segment] -= (1 - c->t) * reaction;
+        cand[k].outer->w->felt_load[c->segment + 1] -= c->t * reaction;
       }
     }
   }
@@ -272,17 +290,14 @@ void hand_feedback(std::span<Inst> insts, std::span<const Pair> couplings,
     for (std::size_t k = 0; k < n; ++k) {
       if (done[k]) continue;
       bool ready = true;
-      const Pair* as_inner = nullptr;
       for (const Pair& c : couplings) {
         const auto inner = static_cast<std::size_t>(c.cm->inner);
         if (static_cast<std::size_t>(c.cm->outer) == k && (inner >= n || !done[inner]))
           ready = false;
-        if (inner == k && !insts[c.cm->outer].parked()) as_inner = &c;
       }
       if (!ready) continue;
       const Inst& in = insts[k];
-      const Vec3 f =
-          quasi_static_force(in, as_inner, as_inner ? &insts[as_inner->cm->outer] : nullptr, set);
+      const Vec3 f = quasi_static_force(insts, k, couplings, set);
       // > 0 when the inserted part pushes the rod back out.
       publish(in, set, -f.dot(in.im->sheath.frame * Vec3::UnitZ()), hub_twist_moment(in));
       done[k] = true;

@@ -101,7 +101,7 @@ void add_sheath_contacts(const Inst& in, const SolverSettings& set) {
   InstrumentScratch& w = *in.w;
   const Vec3 axis = sh.frame * Vec3::UnitZ();
   for (int i = in.drive().first_free; i < md.n && in_sheath(in, i); ++i) {
-    if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i]) continue;
+    if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i] || in.held(i)) continue;
     const Vec3 rel = st.x[i] - sh.access_point;
     const Vec3 radial = rel - rel.dot(axis) * axis;
     const double rho = radial.norm();
@@ -128,7 +128,7 @@ void detect_contacts(const Inst& in, VesselWall& wall, const SolverSettings& set
   s.wall_travel += wall.speed_bound() * dt;
   const int first = in.driven() ? in.drive().first_free : 0;
   for (int i = first; i < md.n; ++i) {
-    if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i] || in_sheath(in, i)) continue;
+    if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i] || in.held(i) || in_sheath(in, i)) continue;
     const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt;
     if (s.clearance[i] > 0.0) {
       const double moved = (st.x[i] - s.query_centre[i]).norm() + s.wall_travel;
@@ -175,6 +175,36 @@ void detect_contacts(const Inst& in, VesselWall& wall, const SolverSettings& set
   if (prof) prof->num_queries += nq;
 }
 
+// An inflated balloon (BalloonHold): its nodes are held within `play` of the vessel's axis, the
+// contact's normal toward the axis, and their friction carries the balloon's pressure on the
+// wall (preload), which anchors it axially.
+void add_hold_contacts(const Inst& in, const SolverSettings& set) {
+  const BalloonHold& h = in.st->hold;
+  if (!h.active()) return;
+  const RodState& st = in.rod();
+  const double dt = set.rod.dt;
+  for (int i = std::max(h.first, in.driven() ? in.drive().first_free : 0); i <= h.last; ++i) {
+    if (in.ws().inv_mass[i] == 0.0) continue;
+    const Vec3& t = h.tangent[i];
+    const Vec3 rel = st.x[i] - h.axis[i];
+    Vec3 radial = rel - rel.dot(t) * t;
+    double rho = radial.norm();
+    if (rho < 1e-12) {
+      // On the axis: any direction across it (friction needs one; the play decides the rest).
+      radial = t.unitOrthogonal();
+      rho = 0.0;
+    } else {
+      radial /= rho;
+    }
+    const double depth = rho - h.play[i];
+    const double reach = set.contact_margin + st.v[i].norm() * dt;
+    if (depth <= -reach && h.wall_load[i] <= 0.0) continue;
+    NodeContact c{i, -radial, depth, 0.0, Vec3::Zero(), h.axis_velocity[i]};
+    c.preload = h.wall_load[i] * dt;
+    in.w->contacts.push_back(c);
+  }
+}
+
 // One projected Gauss-Seidel sweep over the contacts: non-penetration (a velocity that closes a
 // speculative gap exactly, or removes a fraction of a penetration), then the friction impulse
 // clamped to the Coulomb cone (static cone; beyond it, sliding at mu_dynamic).
@@ -197,7 +227,8 @@ void solve_contacts(const Inst& in, const SolverSettings& set) {
     const Vec3 vt = vr - vr.dot(c.normal) * c.normal;
     Vec3 lt = c.lambda_t - vt / w;
     const double lt_norm = lt.norm();
-    if (lt_norm > mu_s * ln) lt *= (mu_d * ln) / lt_norm;
+    const double pressed = ln + c.preload;
+    if (lt_norm > mu_s * pressed) lt *= (mu_d * pressed) / lt_norm;
     v += w * (lt - c.lambda_t);
     c.lambda_t = lt;
   }
@@ -325,7 +356,8 @@ constexpr int kRimEdges = 3;
 // node, with L the rim point on that side and p the edge's point nearest L, the gap is
 // sd - r_w with sd = +-|p - L|, + when L lies on the wall's side of the edge (the wire passes in
 // front of the rim), - when the edge cuts through the wall.
-void add_rim_contact(const Pair& cp, const Inst& in, const Inst& out, const SolverSettings& set) {
+void add_rim_contact(const Pair& cp, unsigned char me, const Inst& in, const Inst& out,
+                     const SolverSettings& set) {
   if (!cp.cm->rim) return;
   const RodModel& mi = in.model();
   const RodModel& mo = out.model();
@@ -333,7 +365,7 @@ void add_rim_contact(const Pair& cp, const Inst& in, const Inst& out, const Solv
   const RodState& so = out.rod();
   const std::vector<unsigned char>& sheathed = in.w->sheathed;
   int i = mi.n - 2;
-  while (i >= in.drive().first_free && !(sheathed[i] && !sheathed[i + 1])) --i;
+  while (i >= in.drive().first_free && !(sheathed[i] == me && sheathed[i + 1] != me)) --i;
   if (i < in.drive().first_free) return;
   const Vec3& tip = so.x[mo.n - 1];
   const Vec3 axis = (tip - so.x[mo.n - 2]).normalized();
@@ -381,33 +413,35 @@ void add_rim_contact(const Pair& cp, const Inst& in, const Inst& out, const Solv
 
 // Pairs every free inner node inside the outer instrument's inserted length with the closest
 // outer edge and records the radial excess beyond the clearance. Marks those inner nodes
-// sheathed (no wall query).
-void detect_coupling(const Pair& cp, const Inst& in, const Inst& out, const SolverSettings& set) {
+// sheathed by this coupling, `me` (no wall query); a node an earlier coupling of the same inner
+// holds (an outer inside this one) is that one's.
+void detect_coupling(const Pair& cp, unsigned char me, const Inst& in, const Inst& out,
+                     const SolverSettings& set) {
   CouplingScratch& cs = *cp.s;
   cs.contacts.clear();
   std::vector<unsigned char>& sheathed = in.w->sheathed;
-  std::fill(sheathed.begin(), sheathed.end(), 0);
   const RodModel& mo = out.model();
   const RodState& si = in.rod();
   const RodState& so = out.rod();
   cs.clearance = std::max(0.0, mo.inner_radius[mo.m - 1] - in.model().outer_radius[0]);
   const double dt = set.rod.dt;
   for_each_sheathed(in, out, [&](int i, int k, bool past) {
+    if (sheathed[i] != 0) return;  // in an outer that lies inside this one
     int best = k;
     double t = 0.0;
     const Vec3 off = offset_from_outer(out, k, si.x[i], best, t);
     if (beyond_tip(mo, best, t)) return;  // outside: the wall's
     const double r = off.norm();
     // Past the inserted length: inside only where it lies in the lumen, next to a node inside.
-    if (past && (!sheathed[i - 1] || r > mo.inner_radius[best])) return;
-    sheathed[i] = 1;
+    if (past && (sheathed[i - 1] != me || r > mo.inner_radius[best])) return;
+    sheathed[i] = me;
     if (r < 1e-12) return;
     const Vec3 rel_v = si.v[i] - ((1 - t) * so.v[best] + t * so.v[best + 1]);
     const double excess = r - cs.clearance;
     if (excess < -(set.contact_margin + rel_v.norm() * dt)) return;
     cs.contacts.push_back({i, best, t, off / r, excess, 0.0, Vec3::Zero()});
   });
-  add_rim_contact(cp, in, out, set);
+  add_rim_contact(cp, me, in, out, set);
 }
 
 // After the positions: moves every sheathed inner node that ended the step beyond the clearance
@@ -417,11 +451,11 @@ void detect_coupling(const Pair& cp, const Inst& in, const Inst& out, const Solv
 // pair scene) leaves the node outside by sqrt(c^2 + (v_t dt)^2) - c. The catheter is taken as fixed
 // here, so one pass is exact; the velocities are left alone (the next step's constraint sees a node
 // at the clearance).
-void project_coupling(const Pair& cp, const Inst& in, const Inst& out) {
+void project_coupling(const Pair& cp, unsigned char me, const Inst& in, const Inst& out) {
   const double clearance = cp.s->clearance;
   RodState& si = in.rod();
   for_each_sheathed(in, out, [&](int i, int k, bool) {
-    if (!in.w->sheathed[i]) return;
+    if (in.w->sheathed[i] != me) return;
     int best = k;
     double t = 0.0;
     const Vec3 off = offset_from_outer(out, k, si.x[i], best, t);
@@ -558,7 +592,9 @@ void InstrumentScratch::resize(const RodModel& md) {
   felt_load.assign(n, Vec3::Zero());
   wall_contact_of.assign(n, -1);
   coupling_of.assign(n, -1);
+  coupling_pair.assign(n, -1);
   rim_of.assign(n, -1);
+  rim_pair.assign(n, -1);
 }
 
 void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWall* wall,
@@ -601,15 +637,19 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
   p.forces = region(1);
   p.integrate_velocities = region(2);
   const double t3 = tick();
-  // 4. collision detection: coupling first (sheathed wire nodes skip the wall)
-  for (const Pair& c : couplings) {
+  // 4. collision detection: coupling first (sheathed wire nodes skip the wall), each inner's
+  // innermost outer first; an inflated balloon's nodes are held to the vessel's axis instead
+  for (const Inst& in : insts)
+    if (!in.parked()) std::fill(in.w->sheathed.begin(), in.w->sheathed.end(), 0);
+  for (std::size_t k = 0; k < couplings.size(); ++k) {
+    const Pair& c = couplings[k];
     const Inst& in = insts[c.cm->inner];
     const Inst& out = insts[c.cm->outer];
     if (in.parked() || out.parked()) {
       c.s->contacts.clear();
       continue;
     }
-    detect_coupling(c, in, out, set);
+    detect_coupling(c, static_cast<unsigned char>(k + 1), in, out, set);
   }
   for (const Inst& in : insts) {
     if (in.parked()) continue;
@@ -619,6 +659,7 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
       in.w->contacts.clear();
     }
     add_sheath_contacts(in, set);
+    add_hold_contacts(in, set);
   }
   const double t4 = tick();
   // 5. block iterations: distance chains and wall contacts with friction (each instrument on its
@@ -647,11 +688,12 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
     rod_integrate_positions(insts[k].model(), rs, insts[k].rod(), insts[k].ws());
     remove_contact_bias(insts[k], set);
   });
-  for (const Pair& c : couplings) {
+  for (std::size_t k = 0; k < couplings.size(); ++k) {
+    const Pair& c = couplings[k];
     const Inst& in = insts[c.cm->inner];
     const Inst& out = insts[c.cm->outer];
     if (!in.parked() && !out.parked()) {
-      project_coupling(c, in, out);
+      project_coupling(c, static_cast<unsigned char>(k + 1), in, out);
       remove_coupling_bias(c, in, out, rs.dt);
     }
   }

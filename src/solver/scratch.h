@@ -21,16 +21,20 @@ struct InstrumentScratch {
   std::vector<LeafCache*> query_caches;  // (n) the queried nodes' caches
   // Wall leaves near each node (static walls). A pure cache of the static tree: a query gives the
   // same answer with or without it, so a restored state need not carry it.
-  std::vector<LeafCache> leaf_cache;    // (n)
-  std::vector<NodeContact> contacts;    // active contacts, capacity n
-  std::vector<unsigned char> sheathed;  // (n) 1: inside another instrument's lumen this step
-  std::vector<Vec3> coupling_impulse;   // (n) coaxial coupling impulses on each node this step
+  std::vector<LeafCache> leaf_cache;  // (n)
+  std::vector<NodeContact> contacts;  // active contacts, capacity n
+  // (n) 1 + the index of the coupling whose outer instrument's lumen holds the node this step;
+  // 0: none (the node meets the wall)
+  std::vector<unsigned char> sheathed;
+  std::vector<Vec3> coupling_impulse;  // (n) coaxial coupling impulses on each node this step
   // Hand-force scratch (physics.md 6.1): reactions of inner instruments on this one's nodes, and
   // each node's wall contact and coupling contact this step (-1: none).
   std::vector<Vec3> felt_load;       // (n)
   std::vector<int> wall_contact_of;  // (n)
-  std::vector<int> coupling_of;      // (n)
+  std::vector<int> coupling_of;      // (n) the node's concentric contact (-1: none)
+  std::vector<int> coupling_pair;    // (n) the coupling it belongs to
   std::vector<int> rim_of;           // (n) the rim contact of the edge from node i (-1: none)
+  std::vector<int> rim_pair;         // (n)
   std::array<double, 3> stage_us{};  // profile scratch: this instrument's stage times (us)
 
   void resize(const RodModel& md);
@@ -55,6 +59,11 @@ struct Inst {
   RodWorkspace& ws() const { return w->rod; }
   bool parked() const { return st->parked; }
   bool driven() const { return im->driven; }
+  // Node i is held by an inflated balloon this step (BalloonHold): no wall query.
+  bool held(int i) const {
+    const BalloonHold& h = st->hold;
+    return i >= h.first && i <= h.last;
+  }
 };
 
 // One coupling as a fine step sees it.

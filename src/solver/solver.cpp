@@ -228,15 +228,28 @@ void SolverModel::validate(const std::string& source) const {
     im.contact.validate(source + ": " + field);
   }
   const auto ni = static_cast<int>(instruments.size());
-  std::vector<int> inner_of(instruments.size(), 0);
+  if (couplings.size() > 254)
+    throw InputError(source, "couplings", "expected at most 254 couplings");
+  auto coupled = [&](int inner, int outer, std::size_t before) {
+    for (std::size_t k = 0; k < before; ++k)
+      if (couplings[k].inner == inner && couplings[k].outer == outer) return true;
+    return false;
+  };
   for (std::size_t c = 0; c < couplings.size(); ++c) {
     const CouplingModel& cm = couplings[c];
     const std::string field = "couplings[" + std::to_string(c) + "]";
     if (cm.inner < 0 || cm.inner >= ni || cm.outer < 0 || cm.outer >= ni || cm.inner == cm.outer)
       throw InputError(source, field, "expected two different instruments of the model");
-    if (++inner_of[cm.inner] > 1)
-      throw InputError(source, field + ".inner", "expected an instrument inside one other only");
+    if (coupled(cm.inner, cm.outer, c))
+      throw InputError(source, field, "expected each instrument in another's lumen once");
     require_nonnegative(cm.mu, source, field + ".mu");
+    // An earlier outer of the same inner must lie inside this one (innermost first).
+    for (std::size_t k = 0; k < c; ++k)
+      if (couplings[k].inner == cm.inner &&
+          !coupled(couplings[k].outer, cm.outer, couplings.size()))
+        throw InputError(source, field,
+                         "expected the outers of instrument " + std::to_string(cm.inner) +
+                             " innermost first, each inside the next");
   }
   require_positive(substeps.speed, source, "substeps.speed");
   require_positive(substeps.travel, source, "substeps.travel");
@@ -400,6 +413,12 @@ void SolverState::hash_into(StateHasher& h) const {
     h.add(in.query_centre);
     h.add(in.clearance);
     h.add_value(in.wall_travel);
+    const BalloonHold& b = in.hold;
+    h.add_value(b.first);
+    h.add_value(b.last);
+    for (const std::vector<Vec3>* v : {&b.axis, &b.tangent, &b.axis_velocity}) h.add(*v);
+    h.add(b.play);
+    h.add(b.wall_load);
   }
   h.add_value(time);
   h.add_value(split);
@@ -447,6 +466,11 @@ std::span<const CoaxialContact> SolverWorkspace::coupling_contacts(int coupling)
 
 double SolverWorkspace::coupling_clearance(int coupling) const {
   return s_->coupling.at(coupling).clearance;
+}
+
+void SolverWorkspace::clear_caches() {
+  for (internal::InstrumentScratch& in : s_->inst)
+    for (LeafCache& c : in.leaf_cache) c.clear();
 }
 
 bool SolverWorkspace::sheathed(int instrument, int node) const {
