@@ -138,6 +138,57 @@ struct LesionProfile {
 LesionProfile lesion_profile(const Lesion& lesion, double ostium, double r0, double s);
 
 // ---------------------------------------------------------------------------------------------
+// Where things are in the tree
+
+// The tree location nearest a point: the segment whose lumen (centreline distance minus radius)
+// is nearest, and the arc length of the projection.
+struct TreeHit {
+  TreeLocation loc;
+  double outside = 0.0;  // m beyond the lumen radius (< 0 inside)
+};
+TreeHit locate(const VesselTree& tree, const Vec3& p);
+// The same searched only near a known location: its segment, parent and children, within
+// `window` m of arc length of it (a point that moved little since; the answer depends only on
+// the point and the hint).
+TreeHit locate_near(const VesselTree& tree, const Vec3& p, const TreeLocation& hint, double window);
+// True when `seg` is `ancestor` or lies below it.
+bool is_descendant(const VesselTree& tree, int seg, int ancestor);
+
+// ---------------------------------------------------------------------------------------------
+// Lesions that open (docs/anatomy.md, "Lesions that open")
+
+// How far a lesion is opened along its length: 0 as built (stenosed), 1 the healthy lumen, above 1
+// stretched beyond it where the plaque was. With opening t the residual lumen is the lesion's with
+// its diameter reduction scaled by (1 - t): radius r0 (1 - reduction phi (1 - t)), the centre
+// shifted by eccentricity (r0 - r) away from the plaque; the lumen's vertices at the lesion move
+// linearly from their stenosed (t = 0) to their healthy (t = 1) positions.
+struct LesionOpening {
+  std::vector<double> t;  // (samples) evenly from the lesion's start to its end
+  // The opening at u in [0, 1] along the lesion (linear between samples).
+  double at(double u) const;
+};
+inline constexpr int kLesionSamples = 65;
+// A lesion's start and end as arc lengths of its segment (m).
+struct LesionSpan {
+  double s0 = 0.0, s1 = 0.0;
+};
+LesionSpan lesion_span(const VesselTree& tree, const Lesion& lesion);
+
+// The lumen's cross-section at arc length s of a segment: its centre (at rest) and radius.
+struct LumenSection {
+  Vec3 centre = Vec3::Zero();
+  double radius = 0.0;
+};
+// With the tree's lesions opened as given (`spans` and `openings` one per tree lesion; empty
+// `openings`: as built).
+LumenSection lumen_section(const VesselTree& tree, std::span<const LesionSpan> spans,
+                           std::span<const LesionOpening> openings, int segment, double s);
+// The opening at which lesion k's lumen at arc length s has radius r (0 where the plaque does not
+// narrow it or r is below its stenosed radius).
+double opening_for_radius(const VesselTree& tree, const Lesion& lesion, const LesionSpan& span,
+                          double s, double r);
+
+// ---------------------------------------------------------------------------------------------
 // Lumen surface
 
 struct LumenSettings {
@@ -169,6 +220,20 @@ struct Lumen {
 // hash of the tree and settings; a stale or corrupt cache file is never used (cache_status says
 // why it was rebuilt). Throws InputError for an invalid tree.
 Lumen build_lumen(const VesselTree& tree, const LumenSettings& settings = {});
+
+// The lumen vertices the lesions move, and where each lies along its lesion (built once).
+struct LesionMorph {
+  std::vector<int> vertices;  // lumen vertices whose stenosed and healthy positions differ
+  std::vector<int> lesion;    // (vertices) which lesion moves it
+  std::vector<double> u;      // (vertices) its position along that lesion, 0 .. 1
+};
+LesionMorph make_lesion_morph(const VesselTree& tree, const Lumen& lumen);
+// The morph's vertices at the given openings (one per tree lesion): stenosed + t (healthy -
+// stenosed), into `out` (one per morph vertex). With `uniform` >= 0 every lesion at that opening.
+void morph_positions(const Lumen& lumen, const LesionMorph& morph,
+                     std::span<const LesionOpening> openings, std::span<Vec3> out);
+void morph_positions(const Lumen& lumen, const LesionMorph& morph, double uniform,
+                     std::span<Vec3> out);
 
 // Lumen radius of a segment measured on the mesh at arc length s: distances from the centreline
 // point to the wall along `rays` rays in the normal plane; their mean, min and max.
@@ -280,6 +345,16 @@ class BeatingLumen {
   BeatingLumen() = default;
   BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion,
                const BeatingLumenSettings& settings = {});
+  // A lumen whose `morph_vertices` may later move at rest (a lesion opened, morph()) as far as
+  // `morph_limit` (one per morph vertex): the patches' boxes cover both.
+  BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion,
+               std::span<const int> morph_vertices, std::span<const Vec3> morph_limit,
+               const BeatingLumenSettings& settings = {});
+
+  // Moves the morph vertices at rest (one position per vertex of the constructor's list, between
+  // their rest and limit positions); the patches holding them are moved again at their next
+  // update. Allocates nothing.
+  void morph(std::span<const Vec3> rest_positions);
 
   // Moves to time t (s) the moving patches that any sphere (centres, radii; radii may hold one
   // value) may touch at t, recomputes their normals and refits their trees. A patch is touched
@@ -350,6 +425,9 @@ class BeatingLumen {
   // Moving patches binned by their box at cardiac phases c = k / (n - 1), each grown to cover
   // half a bin either side and any respiration, so a node is looked up in the grid of its phase.
   std::vector<PatchGrid> phase_grids_;
+  // Morph vertices: their places in the patches (patch index, -1 for the static part; local
+  // vertex), listed from morph_start_[k] to morph_start_[k + 1] for morph vertex k.
+  std::vector<int> morph_start_, morph_patch_, morph_local_;
   mutable std::vector<std::uint32_t> seen_;  // per-patch stamps (scratch, no allocation)
   mutable std::uint32_t stamp_ = 0;
 };

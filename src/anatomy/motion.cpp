@@ -1,6 +1,7 @@
 // Cardiac and respiratory motion as a smooth displacement field, and the lumen split into
 // patches so that a physics step moves and refits only what instruments can touch.
 #include <algorithm>
+#include <cassert>
 #include <cmath>
 #include <numbers>
 
@@ -183,7 +184,22 @@ void split(const TriangleMesh& m, const std::vector<Vec3>& centroid, std::vector
 
 BeatingLumen::BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion,
                            const BeatingLumenSettings& settings)
+    : BeatingLumen(rest, motion, {}, {}, settings) {}
+
+BeatingLumen::BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion,
+                           std::span<const int> morph_vertices, std::span<const Vec3> morph_limit,
+                           const BeatingLumenSettings& settings)
     : motion_(motion) {
+  if (morph_limit.size() != morph_vertices.size())
+    throw InputError("BeatingLumen", "morph_limit", "expected one position per morph vertex");
+  std::vector<int> morph_index(rest.vertices.size(), -1);
+  for (std::size_t k = 0; k < morph_vertices.size(); ++k) {
+    const int v = morph_vertices[k];
+    if (v < 0 || v >= rest.num_vertices())
+      throw InputError("BeatingLumen", "morph_vertices", "expected vertices of the mesh");
+    morph_index[v] = static_cast<int>(k);
+  }
+  std::vector<std::vector<std::pair<int, int>>> places(morph_vertices.size());
   if (settings.patch_triangles < 8)
     throw InputError("BeatingLumenSettings", "patch_triangles", "expected at least 8");
   num_triangles_ = rest.num_triangles();
@@ -205,7 +221,7 @@ BeatingLumen::BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion
   if (!moving_tris.empty())
     split(rest, centroid, moving_tris, 0, moving_tris.size(), settings.patch_triangles, groups);
   std::vector<int> local(rest.vertices.size(), -1);
-  auto make_patch = [&](const std::vector<int>& tris) {
+  auto make_patch = [&](const std::vector<int>& tris, int index) {
     Patch p;
     for (int t : tris) {
       std::array<int, 3> lt{};
@@ -221,12 +237,18 @@ BeatingLumen::BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion
       p.global_triangle.push_back(t);
     }
     double amp = 0.0;
-    for (int v : p.global_vertex) {
+    std::vector<Vec3> limits;  // the morph vertices' farthest positions
+    for (std::size_t k = 0; k < p.global_vertex.size(); ++k) {
+      const int v = p.global_vertex[k];
       local[v] = -1;
       p.rest.push_back(rest.vertices[v]);
       p.a_cardiac.push_back(ac[v]);
       p.a_resp.push_back(ar[v]);
       amp = std::max(amp, ac[v].norm() + ar[v].norm());
+      if (const int m = morph_index[v]; m >= 0) {
+        places[m].push_back({index, static_cast<int>(k)});
+        limits.push_back(morph_limit[m]);
+      }
     }
     p.mesh.vertices = p.rest;
     p.mesh.recompute_normals();
@@ -237,6 +259,17 @@ BeatingLumen::BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion
     p.amp_c_box = box_of(p.a_cardiac);
     p.amp_r_box = box_of(p.a_resp);
     p.reach = box_of(p.rest);
+    if (!limits.empty()) {
+      // A lesion opened later moves these vertices at rest as far as their limits.
+      Aabb lb = box_of(limits);
+      lb.lo.array() -= settings.tree.margin;
+      lb.hi.array() += settings.tree.margin;
+      p.rest_box.lo = p.rest_box.lo.cwiseMin(lb.lo);
+      p.rest_box.hi = p.rest_box.hi.cwiseMax(lb.hi);
+      const Aabb l = box_of(limits);
+      p.reach.lo = p.reach.lo.cwiseMin(l.lo);
+      p.reach.hi = p.reach.hi.cwiseMax(l.hi);
+    }
     const double grow = amp + settings.tree.margin;
     p.reach.lo.array() -= grow;
     p.reach.hi.array() += grow;
@@ -246,8 +279,16 @@ BeatingLumen::BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion
     }
     return p;
   };
-  if (!static_tris.empty()) static_ = make_patch(static_tris);
-  for (const auto& g : groups) patches_.push_back(make_patch(g));
+  if (!static_tris.empty()) static_ = make_patch(static_tris, -1);
+  for (const auto& g : groups) patches_.push_back(make_patch(g, static_cast<int>(patches_.size())));
+  morph_start_.assign(1, 0);
+  for (const auto& pl : places) {
+    for (const auto& [patch, lv] : pl) {
+      morph_patch_.push_back(patch);
+      morph_local_.push_back(lv);
+    }
+    morph_start_.push_back(static_cast<int>(morph_patch_.size()));
+  }
   constexpr int kPhases = 9;
   phase_grids_.resize(kPhases);
   for (int k = 0; k < kPhases; ++k) {
@@ -429,6 +470,29 @@ void BeatingLumen::query_spheres(std::span<const Vec3> centres, std::span<const 
     const SphereContact merged = merge.result(centres[i], rad);
     // As before the merge: a sphere that overlaps no triangle is not in contact.
     out[i] = merged.num_touching > 0 ? merged : SphereContact{};
+  }
+}
+
+void BeatingLumen::morph(std::span<const Vec3> rest_positions) {
+  assert(rest_positions.size() + 1 == morph_start_.size());
+  bool static_moved = false;
+  for (std::size_t k = 0; k < rest_positions.size(); ++k) {
+    for (int j = morph_start_[k]; j < morph_start_[k + 1]; ++j) {
+      const int pi = morph_patch_[j];
+      Patch& p = pi < 0 ? static_ : patches_[pi];
+      p.rest[morph_local_[j]] = rest_positions[k];
+      if (pi < 0) {
+        p.mesh.vertices[morph_local_[j]] = rest_positions[k];
+        static_moved = true;
+      } else {
+        p.time = -1.0;  // moved again at its next update
+      }
+    }
+  }
+  if (static_moved) {
+    static_.mesh.recompute_normals();
+    static_.tree.refit(static_.mesh);
+    static_.box = static_.tree.nodes().front().box;
   }
 }
 
