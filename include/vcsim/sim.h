@@ -29,6 +29,7 @@
 #include "vcsim/commands.h"
 #include "vcsim/haptics.h"
 #include "vcsim/instruments.h"
+#include "vcsim/procedure.h"
 #include "vcsim/solver.h"
 
 namespace vcsim {
@@ -37,9 +38,13 @@ namespace vcsim {
 // Scenario
 
 struct ScenarioInstrument {
-  std::string name;             // the name timelines, landmarks and the autopilot use ("catheter")
-  std::string catalogue;        // catalogue entry ("catheter-jl4-6f")
-  std::string inside;           // name of the instrument whose lumen holds this one, "" for none
+  std::string name;       // the name timelines, landmarks and the autopilot use ("catheter")
+  std::string catalogue;  // catalogue entry ("catheter-jl4-6f")
+  std::string inside;     // name of the instrument whose lumen holds this one, "" for none
+  // Name of the wire this one rides on (a balloon or stent catheter over the coronary wire, a
+  // catheter exchanged over a wire): the wire runs in its lumen; "" for none. Both must be
+  // `inside` the same instrument (or neither).
+  std::string over;
   bool rim = true;              // with `inside`: its edges leaving that lumen wrap round its rim
   int max_nodes = 256;          // at most 512
   double tip_segment = 1.0e-3;  // m, most distal segment
@@ -153,6 +158,8 @@ struct Scenario {
   double fine_step_jump = 0.3;
   double fine_step_hold = 0.02;
   std::vector<ScenarioInstrument> instruments;
+  // How each lesion of the anatomy takes a balloon (one per lesion; empty: the defaults).
+  std::vector<LesionMechanics> lesions;
   std::string timeline;  // timeline file (relative to the scenario's folder); "" = autopilot
   std::vector<AutopilotPhase> autopilot;
   std::vector<Landmark> landmarks;
@@ -177,20 +184,6 @@ std::filesystem::path find_scenario(const std::string& name_or_path, const std::
                                     const std::string& field);
 
 // ---------------------------------------------------------------------------------------------
-// Where things are in the tree
-
-// The tree location nearest a point: the segment whose lumen (centreline distance minus radius)
-// is nearest, and the arc length of the projection. `inside` is false when the point is outside
-// every lumen by more than `slack` m.
-struct TreeHit {
-  TreeLocation loc;
-  double outside = 0.0;  // m beyond the lumen radius (< 0 inside)
-};
-TreeHit locate(const VesselTree& tree, const Vec3& p);
-// True when `seg` is `ancestor` or lies below it.
-bool is_descendant(const VesselTree& tree, int seg, int ancestor);
-
-// ---------------------------------------------------------------------------------------------
 // Model
 
 struct SimModel {
@@ -203,6 +196,7 @@ struct SimModel {
   SolverModel solver;  // the instruments at the femoral sheath, their couplings, the splits
   std::vector<std::pair<int, int>> landmark_ids;  // (landmark) instrument and segment index
   std::vector<int> outer_of;  // (instrument) the instrument whose lumen holds it, -1: none
+  ProcedureModel procedure;   // balloons on the instruments, the lesions and how they open
 
   double dt() const { return solver.dt(); }
   int num_instruments() const { return static_cast<int>(specs.size()); }
@@ -247,6 +241,7 @@ struct SimMetrics {
 
 struct SimState {
   SolverState solver;  // instruments (rods, drives, contact coherence), time, split and its hold
+  ProcedureState procedure;  // balloons, lesions' opening, stents, events
   ContrastState contrast;
   SimMetrics metrics;
   // For the procedure's random events (seeded by Scenario::seed; none draws from it yet).
@@ -291,6 +286,7 @@ class SimWorkspace {
 // Wall-clock time of a sim step's stages (microseconds).
 struct SimStepProfile {
   StepProfile instruments;  // the solver's stages, summed over the fine steps
+  double procedure = 0.0;   // balloons, lesions, the wall brought to them (before the solver)
   double solver = 0.0;      // solver_step: sub-steps, wall motion, instruments
   double contrast = 0.0;    // injection point and transport
   double metrics = 0.0;     // tip paths, peak forces

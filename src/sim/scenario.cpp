@@ -130,6 +130,7 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
     si.name = g.text("name");
     si.catalogue = g.text("catalogue");
     si.inside = g.text_or("inside", "");
+    si.over = g.text_or("over", "");
     if (g.has("rim")) {
       if (si.inside.empty())
         g.fail("rim", "expected only with \"inside\" (the outer instrument's rim)");
@@ -153,6 +154,38 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
       throw InputError(src, field,
                        "expected an outermost instrument ('" + in + "' is itself inside '" +
                            sc.instruments[o].inside + "')");
+  }
+  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
+    const ScenarioInstrument& si = sc.instruments[i];
+    if (si.over.empty()) continue;
+    const std::string field = internal::index_path("instruments", i) + ".over";
+    const int w = sc.find_instrument(si.over);
+    if (w < 0 || w == static_cast<int>(i))
+      throw InputError(src, field,
+                       "expected the name of another instrument, got '" + si.over + "'");
+    if (sc.instruments[w].inside != si.inside)
+      throw InputError(src, field,
+                       "expected a wire in the same outer instrument as this one ('" + si.over +
+                           "' is inside '" + sc.instruments[w].inside + "', this inside '" +
+                           si.inside + "')");
+    for (std::size_t e = 0; e < i; ++e)
+      if (sc.instruments[e].over == si.over)
+        throw InputError(src, field,
+                         "expected one instrument over a wire ('" + sc.instruments[e].name +
+                             "' already rides on '" + si.over + "')");
+  }
+  if (f.has("lesions")) {
+    const Json& ls = f.array("lesions");
+    for (std::size_t i = 0; i < ls.size(); ++i) {
+      JsonFields g(ls[i], src, internal::index_path("lesions", i));
+      LesionMechanics lm;
+      lm.opening_pressure =
+          g.in_range_or("opening_pressure_atm", 0.0, 30.0, lm.opening_pressure / kAtm) * kAtm;
+      lm.recoil = g.number_or("recoil", lm.recoil);
+      if (!(lm.recoil >= 0.0 && lm.recoil < 1.0)) g.fail("recoil", "expected a fraction in [0, 1)");
+      g.finish();
+      sc.lesions.push_back(lm);
+    }
   }
 
   std::string input = "autopilot";

@@ -9,16 +9,67 @@
 
 namespace vcsim::internal {
 
+// A deployed stent as the instruments meet it at the step's time: its rings' centres (moved with
+// the vessel) and radii.
+struct StentTube {
+  std::vector<Vec3> rest, amp_c, amp_r;  // (rings) centres at rest and their motion amplitudes
+  std::vector<Vec3> centre;              // (rings) m, now
+  std::vector<double> radius;            // (rings) m
+  Vec3 middle = Vec3::Zero();            // centre of a sphere holding the whole stent
+  double reach = 0.0;                    // its radius (m)
+};
+
+// The wall the instruments meet: the lumen (lesions opened as the state has them) and, inside
+// it, the deployed stents, whose struts hold what passes through them. A node inside a stent's
+// span meets whichever of the two it penetrates more.
+class ProcedureWall final : public VesselWall {
+ public:
+  VesselWall* lumen = nullptr;
+  std::vector<StentTube> stents;
+  const CardiacMotion* motion = nullptr;
+
+  void set_time(double t) override {
+    time_ = t;
+    lumen->set_time(t);
+  }
+  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                     std::span<SphereContact> out) override;
+  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                     std::span<LeafCache* const> caches, double slack,
+                     std::span<SphereContact> out) override;
+  Vec3 velocity(const SphereContact& hit) const override;
+  double speed_bound() const override { return lumen->speed_bound(); }
+
+ private:
+  void add_stents(std::span<const Vec3> centres, std::span<const double> radii,
+                  std::span<SphereContact> out) const;
+  double time_ = 0.0;
+};
+
 struct SimScratch {
   explicit SimScratch(const SimModel& model);
-  // The wall: the beating lumen's patches, moved lazily to each fine step's time where the
-  // instruments can reach them (a pure function of that time), or the static tree's queries.
+  // The lumen: the beating lumen's patches, moved lazily to each fine step's time where the
+  // instruments can reach them (a pure function of that time and the lesions' opening), or a
+  // static tree's queries (the workspace's own mesh and tree when lesions can open).
   std::unique_ptr<BeatingLumen> beating;
   std::unique_ptr<BeatingWall> beating_wall;
+  TriangleMesh static_mesh;
+  AabbTree static_tree;
   std::unique_ptr<StaticWall> static_wall;
-  VesselWall* wall = nullptr;
+  ProcedureWall wall;
+  // The lesions' opening the lumen shows (compared with the state's before each step).
+  std::vector<LesionOpening> shown_opening;
+  std::vector<Vec3> morphed;                // (morph vertices) scratch
+  std::vector<int> morph_triangles;         // triangles with a morph vertex (static lumen)
+  std::vector<std::uint64_t> shown_stents;  // hash of each stent's rings the wall shows
   SolverWorkspace solver;
   std::vector<Vec3> old_tips;  // (instrument) the tips before the step
 };
+
+// Brings the wall to the state before a step ending at t1: the lumen morphed to the lesions'
+// opening if it changed, the deployed stents' tubes rebuilt if they changed and moved to t1. A
+// changed wall invalidates every node's clearance and leaf cache (the state's and the solver
+// workspace's). Allocates only when a stent is first deployed.
+void sync_wall(const SimModel& model, SimState& state, SimScratch& scratch, double t1);
 
 }  // namespace vcsim::internal

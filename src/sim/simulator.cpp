@@ -55,34 +55,6 @@ void hash_tree(StateHasher& h, const VesselTree& t) {
 
 }  // namespace
 
-TreeHit locate(const VesselTree& tree, const Vec3& p) {
-  TreeHit best;
-  best.outside = std::numeric_limits<double>::infinity();
-  for (int si = 0; si < tree.num_segments(); ++si) {
-    const VesselSegment& seg = tree.segments[si];
-    double s0 = 0.0;
-    for (std::size_t k = 0; k + 1 < seg.points.size(); ++k) {
-      const Vec3 a = seg.points[k], d = seg.points[k + 1] - a;
-      const double len2 = d.squaredNorm(), len = std::sqrt(len2);
-      const double t = len2 > 0.0 ? std::clamp((p - a).dot(d) / len2, 0.0, 1.0) : 0.0;
-      const double r = seg.radii[k] + t * (seg.radii[k + 1] - seg.radii[k]);
-      const double out = (p - (a + t * d)).norm() - r;
-      if (out < best.outside) {
-        best.outside = out;
-        best.loc = {si, s0 + t * len};
-      }
-      s0 += len;
-    }
-  }
-  return best;
-}
-
-bool is_descendant(const VesselTree& tree, int seg, int ancestor) {
-  for (int s = seg; s >= 0; s = tree.segments[s].parent)
-    if (s == ancestor) return true;
-  return false;
-}
-
 // --- model ---------------------------------------------------------------------------------------
 
 std::shared_ptr<const SimModel> build_sim_model(Scenario scenario) {
@@ -119,6 +91,13 @@ std::shared_ptr<const SimModel> build_sim_model(Scenario scenario) {
   }
   md.outer_of.assign(sc.instruments.size(), -1);
   for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
+    const int w = sc.find_instrument(sc.instruments[i].over);
+    if (w >= 0 && md.specs[i].inner_diameter <= md.specs[w].outer_diameter)
+      throw InputError(src, "instruments[" + std::to_string(i) + "].over",
+                       "expected a wire thinner than the instrument's lumen: '" + md.specs[i].name +
+                           "' has ID " + std::to_string(md.specs[i].inner_diameter / kMm) +
+                           " mm, '" + md.specs[w].name + "' OD " +
+                           std::to_string(md.specs[w].outer_diameter / kMm) + " mm");
     const int o = sc.find_instrument(sc.instruments[i].inside);
     if (o < 0) continue;
     if (md.specs[o].inner_diameter <= md.specs[i].outer_diameter)
@@ -169,6 +148,18 @@ std::shared_ptr<const SimModel> build_sim_model(Scenario scenario) {
         def, sheath,
         ContactMaterial{md.specs[i].friction.vessel_static, md.specs[i].friction.vessel_dynamic}));
   }
+  // A wire an instrument rides on runs in that instrument's lumen first (it lies inside the
+  // guide both are in), then in the guide's.
+  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
+    const int w = sc.find_instrument(sc.instruments[i].over);
+    if (w < 0) continue;
+    CouplingModel c;
+    c.inner = w;
+    c.outer = static_cast<int>(i);
+    c.mu = md.specs[w].friction.lumen;
+    c.rim = sc.instruments[w].rim;
+    sv.couplings.push_back(c);
+  }
   for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
     if (md.outer_of[i] < 0) continue;
     CouplingModel c;
@@ -186,6 +177,12 @@ std::shared_ptr<const SimModel> build_sim_model(Scenario scenario) {
   sv.substeps.jump = sc.fine_step_jump;
   sv.substeps.hold = sc.fine_step_hold;
   sv.validate(src);
+  if (!sc.lesions.empty() && sc.lesions.size() != md.tree.lesions.size())
+    throw InputError(src, "lesions",
+                     "expected one entry per lesion of the anatomy (" +
+                         std::to_string(md.tree.lesions.size()) + "), got " +
+                         std::to_string(sc.lesions.size()));
+  md.procedure = make_procedure_model(md.tree, md.lumen, sv, md.specs, sc.lesions);
   return model;
 }
 
@@ -287,6 +284,7 @@ SimState make_sim_state(const SimModel& md) {
   m.peak_torque.assign(n, 0.0);
   m.last_axial_force.assign(n, std::nan(""));
   m.landmarks.assign(md.scenario.landmarks.size(), LandmarkRecord{});
+  st.procedure = make_procedure_state(md.procedure, st.solver);
   st.random.state = md.scenario.seed;
   return st;
 }
@@ -313,6 +311,7 @@ std::uint64_t SimState::hash() const {
   h.add_value(m.next_landmark_check);
   h.add_value(m.rollbacks);
   h.add_value(m.resplit_steps);
+  procedure.hash_into(h);
   h.add_value(random.state);
   return h.value();
 }
@@ -339,6 +338,13 @@ std::size_t SimState::bytes() const {
   b += bytes_of(m.tip_path) + bytes_of(m.peak_wall_force) + bytes_of(m.peak_axial_force) +
        bytes_of(m.peak_axial_jump) + bytes_of(m.peak_torque) + bytes_of(m.last_axial_force) +
        bytes_of(m.landmarks);
+  for (const BalloonState& bs : procedure.balloons) b += bytes_of(bs.radius) + bytes_of(bs.s);
+  for (const StentState& ss : procedure.stents)
+    b += bytes_of(ss.expanded) + bytes_of(ss.ring_s) + bytes_of(ss.ring_radius);
+  for (const auto* v :
+       {&procedure.opening, &procedure.max_opening, &procedure.stent_hold, &procedure.pushed})
+    for (const LesionOpening& o : *v) b += bytes_of(o.t);
+  b += bytes_of(procedure.events);
   return b;
 }
 
@@ -353,18 +359,44 @@ const SolverWorkspace& SimWorkspace::solver() const {
   return s_->solver;
 }
 VesselWall& SimWorkspace::wall() {
-  return *s_->wall;
+  return s_->wall;
 }
 
 internal::SimScratch::SimScratch(const SimModel& md) : solver(md.solver) {
+  const LesionMorph& morph = md.procedure.morph;
+  const bool morphs = !morph.vertices.empty();
   if (md.motion) {
-    beating = std::make_unique<BeatingLumen>(md.lumen.mesh, *md.motion);
+    beating = std::make_unique<BeatingLumen>(md.lumen.mesh, *md.motion, morph.vertices,
+                                             md.procedure.morph_limit);
     beating_wall = std::make_unique<BeatingWall>(*beating);
-    wall = beating_wall.get();
+    wall.lumen = beating_wall.get();
+  } else if (morphs) {
+    // The lumen's own copy, to morph in place.
+    static_mesh = md.lumen.mesh;
+    static_tree = md.static_tree;
+    static_wall = std::make_unique<StaticWall>(static_mesh, static_tree);
+    wall.lumen = static_wall.get();
   } else {
     static_wall = std::make_unique<StaticWall>(md.lumen.mesh, md.static_tree);
-    wall = static_wall.get();
+    wall.lumen = static_wall.get();
   }
+  wall.motion = md.motion ? &*md.motion : nullptr;
+  if (morphs && !md.motion) {
+    std::vector<unsigned char> moved(md.lumen.mesh.vertices.size(), 0);
+    for (int v : morph.vertices) moved[v] = 1;
+    for (int t = 0; t < md.lumen.mesh.num_triangles(); ++t)
+      for (int v : md.lumen.mesh.triangles[t])
+        if (moved[v]) {
+          morph_triangles.push_back(t);
+          break;
+        }
+  }
+  LesionOpening zero;
+  zero.t.assign(kLesionSamples, 0.0);
+  shown_opening.assign(md.tree.lesions.size(), zero);
+  morphed.resize(morph.vertices.size());
+  shown_stents.assign(md.procedure.balloons.size(), 0);
+  wall.stents.resize(md.procedure.balloons.size());
   old_tips.resize(md.solver.instruments.size());
 }
 
@@ -449,14 +481,30 @@ void sim_step(const SimModel& md, SimState& st, SimWorkspace& ws, const StepComm
   auto tick = [&]() { return prof ? now_us() : 0.0; };
   const double t0 = tick();
   const std::size_t n = st.solver.instruments.size();
+  const double dt = md.dt();
+  const CardiacMotion* motion = md.motion ? &*md.motion : nullptr;
   for (std::size_t i = 0; i < n; ++i) s.old_tips[i] = tip(st, static_cast<int>(i));
-  // 1. instruments: sub-steps, the wall at each fine step's time, rollback
-  const StepInfo info = solver_step(md.solver, st.solver, s.solver, s.wall, cmds.drive,
+  // 1. procedure: balloon pressures, the lesions they open, their holds on the nodes; the wall
+  // brought to the lesions and stents of the state
+  if (!md.procedure.balloons.empty())
+    procedure_before_step(md.procedure, md.solver, md.tree, motion, cmds, st.time(), dt,
+                          st.procedure, st.solver);
+  internal::sync_wall(md, st, s, st.time() + dt);
+  if (!md.procedure.balloons.empty())
+    procedure_fit(md.procedure, md.solver, md.tree, motion, *s.wall.lumen, st.time() + dt,
+                  st.procedure, st.solver);
+  const double t1 = tick();
+  // 2. instruments: sub-steps, the wall at each fine step's time, rollback
+  const StepInfo info = solver_step(md.solver, st.solver, s.solver, &s.wall, cmds.drive,
                                     prof ? &prof->instruments : nullptr);
   st.metrics.resplit_steps += info.resplit ? 1 : 0;
   st.metrics.rollbacks += info.rolled_back ? 1 : 0;
-  const double t1 = tick();
-  // 2. contrast: an injection enters where the outermost instrument's tip is (the guide)
+  const double t2 = tick();
+  // 3. procedure: stents released, gripped, carried
+  if (!md.procedure.balloons.empty())
+    procedure_after_step(md.procedure, md.solver, md.tree, motion, st.time(), st.procedure,
+                         st.solver);
+  // 4. contrast: an injection enters where the outermost instrument's tip is (the guide)
   TreeLocation at;
   if (cmds.syringe_flow > 0.0 && st.contrast.segment < 0) {
     int outer = 0;
@@ -466,20 +514,21 @@ void sim_step(const SimModel& md, SimState& st, SimWorkspace& ws, const StepComm
         outer = static_cast<int>(i);
     at = tip_location(md, st, outer).loc;
   }
-  contrast_step(md.tree, md.scenario.contrast, md.dt(), cmds.syringe_flow, at, st.contrast);
-  const double t2 = tick();
-  // 3. metrics, 4. landmarks
+  contrast_step(md.tree, md.scenario.contrast, dt, cmds.syringe_flow, at, st.contrast);
+  const double t3 = tick();
+  // 5. metrics, 6. landmarks
   update_metrics(md, st, s.solver, s.old_tips);
   st.metrics.steps += 1;
-  const double t3 = tick();
+  const double t4 = tick();
   check_landmarks(md, st);
   if (prof) {
-    const double t4 = tick();
-    prof->solver = t1 - t0;
-    prof->contrast = t2 - t1;
-    prof->metrics = t3 - t2;
-    prof->landmarks = t4 - t3;
-    prof->total = t4 - t0;
+    const double t5 = tick();
+    prof->procedure = t1 - t0;
+    prof->solver = t2 - t1;
+    prof->contrast = t3 - t2;
+    prof->metrics = t4 - t3;
+    prof->landmarks = t5 - t4;
+    prof->total = t5 - t0;
   }
 }
 
@@ -512,6 +561,7 @@ void Simulator::step(const StepCommands& cmds) {
   profile_.wall_time += (now_us() - t0) * 1e-6;
   profile_.steps += 1;
   SimStepProfile& sum = profile_.sum;
+  sum.procedure += p.procedure;
   sum.solver += p.solver;
   sum.contrast += p.contrast;
   sum.metrics += p.metrics;
@@ -551,6 +601,9 @@ void Simulator::restore(const SimState& snap) {
   if (snap.contrast.concentration.size() != static_cast<std::size_t>(md.tree.num_segments()) ||
       snap.contrast.history.size() != state_.contrast.history.size())
     refuse("contrast");
+  if (snap.procedure.balloons.size() != md.procedure.balloons.size() ||
+      snap.procedure.opening.size() != md.procedure.lesions.size())
+    refuse("procedure");
   if (snap.metrics.landmarks.size() != md.landmark_ids.size() ||
       snap.metrics.tip_path.size() != md.solver.instruments.size())
     refuse("metrics");

@@ -1,0 +1,190 @@
+// vcsim procedure: what the treatment does to the vessel (docs/procedure.md). Balloons inflated by
+// pressure along their compliance charts, fitted to the vessel; lesions that hold a balloon's
+// waist below their opening pressure, yield to it above, and recoil when it deflates; stents that
+// expand with their balloons, stay at their expanded size less recoil, follow the beating vessel
+// and hold it open; and the outcomes a cardiologist measures. Split like the other levels: a
+// ProcedureModel built once, a ProcedureState that changes (part of SimState), and two step
+// functions around the solver's step.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "vcsim/anatomy.h"
+#include "vcsim/commands.h"
+#include "vcsim/instruments.h"
+#include "vcsim/solver.h"
+
+namespace vcsim {
+
+// ---------------------------------------------------------------------------------------------
+// Model
+
+// A balloon (a balloon catheter's, or a stent system's delivery balloon) on an instrument.
+struct BalloonModel {
+  int instrument = -1;
+  std::vector<int> outers;  // the instruments whose lumens it runs in (the guide)
+  BalloonSpec spec;
+  std::optional<StentSpec> stent;  // crimped on the balloon
+  // The rod's nodes along the balloon at its longest (rated burst), proximal to distal, and each
+  // node's distance from the balloon's distal end along the rod (m).
+  int first = 0, last = -1;
+  std::vector<double> from_distal;  // (last - first + 1)
+  std::vector<double> node_length;  // (last - first + 1) balloon length each node carries (m)
+  double shaft_radius = 0.0;        // of the folded balloon: half the crossing profile (m)
+  int nodes() const { return last - first + 1; }
+};
+
+// How a lesion takes a balloon (per lesion of the tree; estimates, docs/procedure.md).
+struct LesionMechanics {
+  double opening_pressure = 6.0 * 101325.0;  // Pa: below it the lesion holds the balloon's waist
+  double recoil = 0.3;  // fraction of the radius a balloon gained that it gives back on deflation
+};
+
+struct LesionModel {
+  int lesion = -1;  // index in the tree's lesions
+  LesionSpan span;
+  LesionMechanics mechanics;
+  double reference_diameter = 0.0;  // the healthy lumen's diameter at its two ends, mean (m)
+};
+
+struct ProcedureModel {
+  std::vector<BalloonModel> balloons;
+  std::vector<LesionModel> lesions;  // one per tree lesion
+  std::vector<LesionSpan> spans;     // (lesion) as lumen_section takes them
+  LesionMorph morph;                 // the lumen vertices the lesions move
+  std::vector<Vec3> morph_limit;     // (morph vertices) at the largest opening a balloon may make
+  static constexpr double kMaxOpening = 1.5;
+};
+
+// The balloons of the scene's instruments (specs[i] of solver.instruments[i]) and the tree's
+// lesions with their mechanics (one per lesion, or empty for the defaults). Throws InputError.
+ProcedureModel make_procedure_model(const VesselTree& tree, const Lumen& lumen,
+                                    const SolverModel& solver,
+                                    std::span<const InstrumentSpec> specs,
+                                    std::span<const LesionMechanics> mechanics = {});
+
+// ---------------------------------------------------------------------------------------------
+// State
+
+struct BalloonState {
+  double pressure = 0.0;      // Pa gauge in the balloon (0 once ruptured)
+  double max_pressure = 0.0;  // Pa, the highest it held
+  bool ruptured = false;
+  double free_diameter = 0.0;  // m: the chart's at the pressure
+  // Where its middle lies while it is inflated in a vessel (rest anatomy; segment -1: not), and
+  // where it last did.
+  TreeLocation centre, last;
+  std::vector<double> radius;  // (balloon nodes) its radius at each node now (m)
+  // (balloon nodes) arc length of each node along last.segment, when last inflated there
+  std::vector<double> s;
+  // The largest free diameter it reached in a vessel, over the reference diameter there.
+  double max_ratio = 0.0;
+  bool over_expanded = false;    // the free diameter passed 1.2 x the reference diameter
+  Vec3 mid_rest = Vec3::Zero();  // its middle node at rest before the solver's step (m)
+};
+
+struct StentState {
+  enum class Phase { kCrimped, kDeployed };
+  Phase phase = Phase::kCrimped;
+  // (balloon nodes) while crimped: the largest radius the balloon gave it at each node (m)
+  std::vector<double> expanded;
+  // Deployed: its rings in the rest anatomy, along one segment, and their radii (m).
+  int segment = -1;
+  std::vector<double> ring_s;
+  std::vector<double> ring_radius;
+  double deployed_at = 0.0;  // s
+};
+
+struct ProcedureEvent {
+  enum class Kind { kRupture, kOverExpansion, kStentDeployed, kPressureRefused };
+  Kind kind = Kind::kRupture;
+  double time = 0.0;  // s
+  int balloon = -1;
+  double value = 0.0;  // Pa (rupture, refused), diameter ratio (over-expansion), m (stent)
+};
+const char* to_string(ProcedureEvent::Kind k);
+
+struct ProcedureState {
+  std::vector<BalloonState> balloons;  // (balloon)
+  std::vector<StentState> stents;      // (balloon) used for stent systems
+  // (lesion) how far each lesion is opened now, the most a balloon opened it, and what a stent
+  // holds open
+  std::vector<LesionOpening> opening, max_opening, stent_hold;
+  // (lesion) how far the inflated balloons push each lesion open this step
+  std::vector<LesionOpening> pushed;
+  std::vector<ProcedureEvent> events;  // in order (capacity reserved: rare)
+  bool refusing = false;  // a pressure with no balloon in the patient was refused (logged once)
+
+  void hash_into(StateHasher& h) const;
+};
+
+ProcedureState make_procedure_state(const ProcedureModel& model, SolverState& solver);
+
+// ---------------------------------------------------------------------------------------------
+// Step
+
+// Before the solver's step to t + dt, in two parts around bringing the wall to the lesions'
+// opening. First: the indeflator's pressure into each balloon in the patient (a balloon outside
+// it refuses it, logged once as an event), rupture past rated burst pressure, where each inflated
+// balloon lies, the lesions it opens (above their opening pressure) and how they recoil.
+void procedure_before_step(const ProcedureModel& model, const SolverModel& solver_model,
+                           const VesselTree& tree, const CardiacMotion* motion,
+                           const StepCommands& commands, double t, double dt, ProcedureState& state,
+                           SolverState& solver);
+// Then, with the wall showing those openings: each inflated balloon's radius fitted to it (it
+// stops at the nearest wall point from the vessel's axis), and the hold it puts on its
+// instrument's nodes (BalloonHold: the axis and the balloon's pressure on the wall) at t1 = t + dt.
+// A stent on its balloon expands with it.
+void procedure_fit(const ProcedureModel& model, const SolverModel& solver_model,
+                   const VesselTree& tree, const CardiacMotion* motion, VesselWall& wall, double t1,
+                   ProcedureState& state, SolverState& solver);
+// After the solver's step: a stent whose balloon deflated stays (deployed), at its expanded
+// radius less its acute recoil, holding the lesion open; a deployed stent that an inflated balloon
+// grips is enlarged by it (post-dilation) and moves with it; lesions recoil where no balloon
+// holds them.
+void procedure_after_step(const ProcedureModel& model, const SolverModel& solver_model,
+                          const VesselTree& tree, const CardiacMotion* motion, double time,
+                          ProcedureState& state, const SolverState& solver);
+
+// ---------------------------------------------------------------------------------------------
+// What a cardiologist measures (docs/procedure.md)
+
+struct LesionOutcome {
+  double reference_diameter = 0.0;  // m
+  double mld_before = 0.0;          // minimal lumen diameter as built (m)
+  double mld_now = 0.0;             // now (m)
+  double stenosis_before = 0.0;     // diameter stenosis, 1 - MLD / reference
+  double stenosis_now = 0.0;
+};
+struct StentOutcome {
+  bool deployed = false;
+  double diameter_min = 0.0, diameter_max = 0.0;  // m
+  double start = 0.0, end = 0.0;                  // arc length along its segment (m)
+  int lesion = -1;                                // the lesion it lies on (-1: none)
+  double longitudinal_offset = 0.0;  // its centre from the lesion's centre (m, + distal)
+  bool geographic_miss = false;      // it does not cover the lesion with 2 mm margins both ends
+  double malapposition = 0.0;        // largest gap between the stent and the lumen around it (m)
+};
+struct BalloonOutcome {
+  double max_pressure = 0.0;  // Pa
+  double max_ratio = 0.0;     // balloon-to-artery: free diameter over the reference diameter
+  bool ruptured = false;
+  bool over_expanded = false;
+};
+struct ProcedureOutcome {
+  std::vector<LesionOutcome> lesions;
+  std::vector<BalloonOutcome> balloons;
+  std::vector<StentOutcome> stents;  // (balloon) of stent systems
+};
+ProcedureOutcome procedure_outcome(const ProcedureModel& model, const VesselTree& tree,
+                                   const ProcedureState& state);
+
+// The lumen's radius at arc length s of a segment with the lesions as the state has them (m).
+double lumen_radius_now(const ProcedureModel& model, const VesselTree& tree,
+                        const ProcedureState& state, int segment, double s);
+
+}  // namespace vcsim

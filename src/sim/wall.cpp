@@ -1,0 +1,162 @@
+// The wall of a simulation: the lumen with its lesions opened as the state has them, and the
+// deployed stents inside it (docs/procedure.md, "The wall").
+#include <algorithm>
+#include <cmath>
+
+#include "sim_scratch.h"
+
+namespace vcsim::internal {
+
+namespace {
+
+// How "deep" a contact is, for choosing between the lumen's and a stent's: behind a wall beats in
+// front of one, and nearer beats farther (smaller is deeper).
+double key(const SphereContact& c) {
+  return c.centre_outside ? -c.distance : c.distance;
+}
+
+}  // namespace
+
+void ProcedureWall::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                                  std::span<SphereContact> out) {
+  lumen->query_spheres(centres, radii, out);
+  add_stents(centres, radii, out);
+}
+
+void ProcedureWall::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                                  std::span<LeafCache* const> caches, double slack,
+                                  std::span<SphereContact> out) {
+  lumen->query_spheres(centres, radii, caches, slack, out);
+  add_stents(centres, radii, out);
+}
+
+Vec3 ProcedureWall::velocity(const SphereContact& hit) const {
+  return lumen->velocity(hit);
+}
+
+// A stent as a smooth tube along its rings: a sphere whose centre projects inside its span and
+// lies within its radius plus the sphere's meets it from inside (a node a strut's width outside is
+// behind it: pushed back in); one farther out, or beyond its ends, does not.
+void ProcedureWall::add_stents(std::span<const Vec3> centres, std::span<const double> radii,
+                               std::span<SphereContact> out) const {
+  for (const StentTube& st : stents) {
+    const std::size_t k_max = st.centre.size();
+    if (k_max < 2) continue;
+    for (std::size_t i = 0; i < centres.size(); ++i) {
+      const Vec3& p = centres[i];
+      const double rad = radii.size() == 1 ? radii[0] : radii[i];
+      if ((p - st.middle).norm() > st.reach + rad) continue;
+      double best = 1e300, best_t = 0.0;
+      std::size_t best_k = 0;
+      for (std::size_t k = 0; k + 1 < k_max; ++k) {
+        const Vec3 d = st.centre[k + 1] - st.centre[k];
+        const double len2 = d.squaredNorm();
+        const double t = len2 > 0.0 ? std::clamp((p - st.centre[k]).dot(d) / len2, 0.0, 1.0) : 0.0;
+        const double d2 = (st.centre[k] + t * d - p).squaredNorm();
+        if (d2 < best) {
+          best = d2;
+          best_t = t;
+          best_k = k;
+        }
+      }
+      // Beyond either end: not within the stent.
+      if ((best_k == 0 && best_t <= 0.0) || (best_k + 2 == k_max && best_t >= 1.0)) continue;
+      const Vec3 q = st.centre[best_k] + best_t * (st.centre[best_k + 1] - st.centre[best_k]);
+      const double r = st.radius[best_k] + best_t * (st.radius[best_k + 1] - st.radius[best_k]);
+      const double rho = std::sqrt(best);
+      if (rho < 1e-12 || rho > r + rad) continue;
+      SphereContact c;
+      c.centre_outside = rho > r;
+      c.distance = std::abs(r - rho);
+      c.touching = c.centre_outside || c.distance < rad;
+      if (!c.touching) continue;
+      c.depth = c.centre_outside ? rad + c.distance : rad - c.distance;
+      c.normal = (q - p) / rho;  // toward the stent's axis: into its lumen
+      c.point = q - c.normal * r;
+      c.triangle = -1;
+      c.num_touching = 1;
+      SphereContact& o = out[i];
+      if (!o.touching || key(c) < key(o)) o = c;
+    }
+  }
+}
+
+void sync_wall(const SimModel& md, SimState& st, SimScratch& sc, double t1) {
+  const ProcedureModel& pm = md.procedure;
+  const ProcedureState& ps = st.procedure;
+  bool changed = false;
+  // The lesions' opening.
+  bool same = true;
+  for (std::size_t k = 0; k < ps.opening.size() && same; ++k)
+    same = ps.opening[k].t == sc.shown_opening[k].t;
+  if (!same) {
+    morph_positions(md.lumen, pm.morph, ps.opening, sc.morphed);
+    if (sc.beating) {
+      sc.beating->morph(sc.morphed);
+    } else {
+      for (std::size_t k = 0; k < pm.morph.vertices.size(); ++k)
+        sc.static_mesh.vertices[pm.morph.vertices[k]] = sc.morphed[k];
+      TriangleMesh& m = sc.static_mesh;
+      for (int t : sc.morph_triangles) {
+        const auto& tri = m.triangles[t];
+        const Vec3 n = (m.vertices[tri[1]] - m.vertices[tri[0]])
+                           .cross(m.vertices[tri[2]] - m.vertices[tri[0]]);
+        const double len = n.norm();
+        m.normals[t] = len > 0.0 ? Vec3(n / len) : Vec3::Zero();
+      }
+      sc.static_tree.refit(sc.static_mesh);
+    }
+    for (std::size_t k = 0; k < ps.opening.size(); ++k) sc.shown_opening[k].t = ps.opening[k].t;
+    changed = true;
+  }
+  // The deployed stents: rebuilt when their rings change, moved to t1.
+  const double c = md.motion ? md.motion->cardiac_waveform(t1) : 0.0;
+  const double r = md.motion ? md.motion->respiratory_waveform(t1) : 0.0;
+  for (std::size_t b = 0; b < ps.stents.size(); ++b) {
+    const StentState& stent = ps.stents[b];
+    StentTube& tube = sc.wall.stents[b];
+    if (stent.phase != StentState::Phase::kDeployed) {
+      tube.centre.clear();
+      continue;
+    }
+    StateHasher h;
+    h.add_value(stent.segment);
+    h.add(stent.ring_s);
+    h.add(stent.ring_radius);
+    if (h.value() != sc.shown_stents[b] || tube.rest.empty()) {
+      sc.shown_stents[b] = h.value();
+      const std::size_t n = stent.ring_s.size();
+      tube.rest.resize(n);
+      tube.amp_c.resize(n);
+      tube.amp_r.resize(n);
+      tube.centre.resize(n);
+      tube.radius = stent.ring_radius;
+      for (std::size_t k = 0; k < n; ++k) {
+        tube.rest[k] =
+            lumen_section(md.tree, pm.spans, ps.opening, stent.segment, stent.ring_s[k]).centre;
+        if (md.motion) {
+          md.motion->amplitudes(tube.rest[k], tube.amp_c[k], tube.amp_r[k]);
+        } else {
+          tube.amp_c[k].setZero();
+          tube.amp_r[k].setZero();
+        }
+      }
+      changed = true;
+    }
+    Vec3 lo = Vec3::Constant(1e300), hi = Vec3::Constant(-1e300);
+    for (std::size_t k = 0; k < tube.rest.size(); ++k) {
+      tube.centre[k] = tube.rest[k] + c * tube.amp_c[k] + r * tube.amp_r[k];
+      lo = lo.cwiseMin(tube.centre[k]);
+      hi = hi.cwiseMax(tube.centre[k]);
+    }
+    tube.middle = 0.5 * (lo + hi);
+    tube.reach = 0.5 * (hi - lo).norm() + *std::max_element(tube.radius.begin(), tube.radius.end());
+  }
+  if (changed) {
+    for (InstrumentState& in : st.solver.instruments)
+      std::fill(in.clearance.begin(), in.clearance.end(), 0.0);
+    sc.solver.clear_caches();
+  }
+}
+
+}  // namespace vcsim::internal
