@@ -343,6 +343,8 @@ class Simulator {
   const std::shared_ptr<const SimModel>& shared_model() const { return model_; }
   const SimState& state() const { return state_; }
   const SimProfile& profile() const { return profile_; }
+  // Its scratch (the wall as the last step left it, the contact lists): for inspection.
+  SimWorkspace& workspace() { return *ws_; }
 
   const Scenario& scenario() const { return model_->scenario; }
   double time() const { return state_.time(); }

@@ -168,5 +168,127 @@ TEST(Balloon, APressureWithTheBalloonOutsideIsRefused) {
   EXPECT_EQ(sim.state().procedure.balloons[0].pressure, 0.0);
 }
 
+// A stent system across a 60 % lesion, inflated to its nominal pressure (10 atm) and deflated.
+struct DeployedStent {
+  BalloonRun r;
+  explicit DeployedStent(const std::string& name)
+      : r(test::balloon_in_tube(scratch(name), {1.5, 60.0, "stent-cocr-3.0x18", ""}), 0.066) {
+    r.run(0.5, 10.0 * kAtm);
+    r.run(0.3, 0.0);
+  }
+  const StentState& stent() const { return r.sim.state().procedure.stents[0]; }
+  double middle() const {  // arc length of the stent's middle ring (m)
+    const StentState& s = stent();
+    return s.ring_s[s.ring_s.size() / 2];
+  }
+  // Pulls the instrument back by `distance` (m) at 20 mm/s, the others held.
+  void pull(int instrument, double distance) {
+    const double from = r.cmds.drive[instrument].translation;
+    const double end = r.sim.time() + distance / 0.02;
+    while (r.sim.time() < end - 1e-9) {
+      r.cmds.drive[instrument].translation = from - 0.02 * (r.sim.time() - (end - distance / 0.02));
+      r.sim.step(r.cmds);
+    }
+  }
+};
+
+// Deployed where its balloon was, at the balloon's size less the stent's acute recoil (5 %),
+// holding the lesion open; then the deflated balloon pulled back 40 mm through it, and the wire
+// after it: the stent stays within 0.2 mm. Control: re-inflated in the stent and pulled back
+// 5 mm, the balloon grips it and carries it.
+TEST(Stent, StaysWhereDeployedWhileTheBalloonAndWireArePulledBackThroughIt) {
+  DeployedStent d("stent");
+  const SimState& st = d.r.sim.state();
+  ASSERT_EQ(d.stent().phase, StentState::Phase::kDeployed);
+  const auto& events = st.procedure.events;
+  ASSERT_FALSE(events.empty());
+  EXPECT_EQ(events.back().kind, ProcedureEvent::Kind::kStentDeployed);
+  const double ring = d.stent().ring_radius[d.stent().ring_radius.size() / 2];
+  EXPECT_GT(ring, 0.95 * 0.95 * 1.5e-3) << "expanded to the lumen less its recoil";
+  EXPECT_LT(ring, 0.95 * 1.5e-3 + 1e-9);
+  EXPECT_NEAR(d.middle(), 0.066, 2e-3) << "where the balloon was";
+  // The lesion stays open where the stent holds it (up to the balloon it met, less recoil).
+  const SimModel& md = d.r.sim.model();
+  EXPECT_GT(lumen_radius_now(md.procedure, md.tree, st.procedure, 0, 0.066), 0.9 * ring);
+  const double at = d.middle();
+  d.pull(1, 0.04);
+  EXPECT_NEAR(d.middle(), at, 0.2e-3) << "the deflated balloon pulled back through it";
+  d.pull(0, 0.04);
+  EXPECT_NEAR(d.middle(), at, 0.2e-3) << "and the wire";
+  EXPECT_EQ(d.r.sim.metrics().rollbacks, 0);
+
+  DeployedStent c("stent-control");
+  const double before = c.middle();
+  c.r.run(0.3, 8.0 * kAtm);
+  c.pull(1, 0.005);
+  EXPECT_GT(std::abs(c.middle() - before), 1e-3) << "an inflated balloon carries it";
+}
+
+// A deployed stent is a wall inside the lumen that moves with the beating vessel: at
+// end-systole a node 0.1 mm inside the stent's radius from the vessel's moved axis meets the
+// stent there, and the same node about the stent's place at rest does not (the vessel has moved
+// on by more than its radius). A stent narrower than the vessel leaves a gap: its malapposition.
+TEST(Stent, IsAWallThatMovesWithTheBeatingVessel) {
+  // The default patient's LAD, beating; a stent of 1.2 mm radius put in its state by hand, 18 mm
+  // long, ending 5 mm before the lesion.
+  Scenario sc = load_scenario(default_scenarios_dir() / "default.json");
+  sc.autopilot.clear();
+  sc.timeline = "unused.json";
+  sc.instruments.push_back({"stent", "stent-cocr-3.0x18", "catheter", "coronary_wire"});
+  Simulator sim(sc);
+  const SimModel& md = sim.model();
+  const int lad = md.tree.find("lad");
+  SimState s = sim.snapshot();
+  StentState& stent = s.procedure.stents[0];
+  stent.phase = StentState::Phase::kDeployed;
+  stent.segment = lad;
+  const std::size_t rings = stent.ring_s.size();
+  const double start = md.procedure.lesions[0].span.s0 - 0.023;
+  ASSERT_GT(start, 0.0);
+  for (std::size_t k = 0; k < rings; ++k) {
+    stent.ring_s[k] = start + 0.018 * static_cast<double>(k) / static_cast<double>(rings - 1);
+    stent.ring_radius[k] = 1.2e-3;
+  }
+  sim.restore(s);
+  StepCommands hold;
+  hold.reset(static_cast<std::size_t>(sim.num_instruments()));
+  const CardiacMotion& motion = *sim.motion();
+  const double t_es = 0.30 * motion.period();  // end-systole
+  while (sim.time() < t_es) sim.step(hold);
+  VesselWall& wall = sim.workspace().wall();
+  wall.set_time(sim.time());
+  int inside = 0, left_behind = 0;
+  for (std::size_t k = 2; k + 2 < rings; ++k) {
+    const Vec3 rest = lumen_section(md.tree, md.procedure.spans, s.procedure.opening, lad,
+                                    stent.ring_s[k])
+                          .centre;
+    const Vec3 moved = rest + motion.displacement(rest, sim.time());
+    const Vec3 u = tangent_at(md.tree.segments[lad], stent.ring_s[k]).unitOrthogonal();
+    // A 0.2 mm node 1.1 mm off the moved axis touches the stent (1.2 mm) from inside.
+    const double r = 0.2e-3;
+    SphereContact c;
+    const Vec3 p = moved + 1.1e-3 * u;
+    wall.query_spheres(std::span<const Vec3>(&p, 1), std::span<const double>(&r, 1),
+                       std::span<SphereContact>(&c, 1));
+    // (the stent's axis is the polyline of its rings: 10 um off a curved vessel's own axis)
+    if (c.touching && !c.centre_outside && std::abs(c.distance - 0.1e-3) < 0.01e-3) ++inside;
+    // The same node about the stent's place at rest: the vessel has moved on (3-5 mm).
+    const Vec3 q = rest + 1.1e-3 * u;
+    wall.query_spheres(std::span<const Vec3>(&q, 1), std::span<const double>(&r, 1),
+                       std::span<SphereContact>(&c, 1));
+    if (!(c.touching && !c.centre_outside && std::abs(c.distance - 0.1e-3) < 0.01e-3))
+      ++left_behind;
+    EXPECT_GT(motion.displacement(rest, sim.time()).norm(), 1.5e-3) << "the vessel moved";
+  }
+  EXPECT_EQ(inside, static_cast<int>(rings) - 4);
+  EXPECT_EQ(left_behind, static_cast<int>(rings) - 4);
+  // Malapposition: the stent (1.2 mm) against the LAD's lumen there.
+  const ProcedureOutcome o = procedure_outcome(md.procedure, md.tree, sim.state().procedure);
+  ASSERT_EQ(o.stents.size(), 1u);
+  const double lumen =
+      lumen_radius_now(md.procedure, md.tree, sim.state().procedure, lad, stent.ring_s[0]);
+  EXPECT_GE(o.stents[0].malapposition, lumen - 1.2e-3 - 1e-9);
+}
+
 }  // namespace
 }  // namespace vcsim
