@@ -77,6 +77,10 @@ nlohmann::json to_json(const InstrumentSpec& s, const Discretisation& disc) {
                         {"grading", plan.grading},
                         {"distal_segment_mm", plan.distal * 1e3},
                         {"proximal_segment_mm", plan.proximal * 1e3}}}};
+  if (s.taper_length > 0.0) {
+    j["tip_taper_mm"] = s.taper_length * 1e3;
+    j["tip_entry_profile_mm"] = s.entry_profile * 1e3;
+  }
   if (s.balloon) {
     const BalloonSpec& b = *s.balloon;
     nlohmann::json chart = nlohmann::json::array();

@@ -56,6 +56,10 @@ struct RodDef {
   double density = 1000.0;            // (kg/m^3)
   double tip_length = 0.0;            // soft tip length (m)
   double tip_modulus_ratio = 1.0;     // alpha = E_tip / E_shaft, in (0, 1]
+  // Tapered distal end (a balloon catheter's tip): the outer radius falls linearly over the last
+  // taper_length to taper_outer_radius at the tip; section, mass and stiffness follow. 0: none.
+  double taper_length = 0.0;        // (m)
+  double taper_outer_radius = 0.0;  // (m), in (inner_radius, outer_radius] when tapered
   std::vector<TipSection> tip_shape;  // rest shape of the distal end
   // Parallel-constraint penalty K_p (N). 0 selects the physical shear stiffness kappa G A
   // (kappa = 0.9), which makes the model a discrete Timoshenko rod.

@@ -363,6 +363,19 @@ InstrumentSpec parse_instrument(std::string_view json_text, const std::string& s
   s.tip_length = f.nonnegative("tip_length_mm") * kMm;
   if (s.tip_length > s.length) f.fail("tip_length_mm", "expected at most length_mm");
   s.tip_modulus_ratio = f.in_range("tip_modulus_ratio", 0.0, 1.0);
+  // A tapered tip (balloon catheters): the entry profile is the diameter that meets a lesion.
+  if (f.has("tip_taper_mm")) {
+    s.taper_length = f.in_range("tip_taper_mm", 0.0, 50.0) * kMm;
+    if (s.taper_length > s.length) f.fail("tip_taper_mm", "expected at most length_mm");
+    s.entry_profile = one_of(f, {{"tip_entry_profile_in", kInch}, {"tip_entry_profile_mm", kMm}},
+                             true, 0.0, 10.0e-3);
+    const char* key = f.has("tip_entry_profile_in") ? "tip_entry_profile_in" : "tip_entry_profile_mm";
+    if (!(s.entry_profile > s.inner_diameter && s.entry_profile <= s.outer_diameter)) {
+      f.fail(key, "expected more than the inner diameter and at most the outer diameter");
+    }
+  } else if (f.has("tip_entry_profile_in") || f.has("tip_entry_profile_mm")) {
+    f.fail("tip_taper_mm", "expected with a tip entry profile (the length it tapers over)");
+  }
   s.poisson = f.in_range_or("poisson", -1.0, 0.5, 0.3);
   s.density = f.in_range("density_kg_m3", 0.0, 25000.0);
 

@@ -79,6 +79,12 @@ void RodDef::validate(const std::string& source) const {
   require_nonnegative(tip_length, source, "tip_length");
   if (tip_length > length) throw InputError(source, "tip_length", "expected at most length");
   require_in_range(tip_modulus_ratio, 0.0, 1.0, source, "tip_modulus_ratio");
+  require_nonnegative(taper_length, source, "taper_length");
+  if (taper_length > length) throw InputError(source, "taper_length", "expected at most length");
+  if (taper_length > 0.0 && !(taper_outer_radius > inner_radius && taper_outer_radius <= outer_radius)) {
+    throw InputError(source, "taper_outer_radius",
+                     "expected more than inner_radius and at most outer_radius");
+  }
   double shaped = 0.0;
   for (std::size_t i = 0; i < tip_shape.size(); ++i) {
     check_section(tip_shape[i], i, source);
@@ -170,7 +176,13 @@ RodModel build_rod(const RodDef& def) {
     const double scale = tip ? def.tip_modulus_ratio : 1.0;
     md.youngs[j] = def.youngs_modulus * scale;
     md.shear[j] = g_shaft * scale;
-    const double ro = def.outer_radius, ri = def.inner_radius;
+    double ro = def.outer_radius;
+    const double ri = def.inner_radius;
+    if (def.taper_length > 0.0 && md.edge_s[j] > def.length - def.taper_length) {
+      const double u = (md.edge_s[j] - (def.length - def.taper_length)) / def.taper_length;
+      ro += u * (def.taper_outer_radius - def.outer_radius);
+      md.outer_radius[j] = ro;
+    }
     md.area[j] = pi * (ro * ro - ri * ri);
     md.bend_inertia[j] = pi * (ro * ro * ro * ro - ri * ri * ri * ri) / 4.0;
     md.kp[j] = def.parallel_stiffness > 0 ? def.parallel_stiffness
