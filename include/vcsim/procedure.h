@@ -42,6 +42,10 @@ struct BalloonModel {
 struct LesionMechanics {
   double opening_pressure = 6.0 * 101325.0;  // Pa: below it the lesion holds the balloon's waist
   double recoil = 0.3;  // fraction of the radius a balloon gained that it gives back on deflation
+  // A crossing instrument pressing the plaque harder than crossing_force compresses it (the
+  // Dotter effect): the lumen there widens at crossing_rate while the load lasts, and stays.
+  double crossing_force = 0.3;    // N on one node
+  double crossing_rate = 2.0e-3;  // m/s of lumen radius
 };
 
 struct LesionModel {
@@ -79,6 +83,8 @@ struct BalloonState {
   // where it last did.
   TreeLocation centre, last;
   std::vector<double> radius;  // (balloon nodes) its radius at each node now (m)
+  // (balloon nodes) the lumen's radius that stops it at each node (m; 1 where not fitted)
+  std::vector<double> lumen;
   // (balloon nodes) arc length of each node along last.segment, when last inflated there
   std::vector<double> s;
   // The largest free diameter it reached in a vessel, over the reference diameter there.
@@ -90,7 +96,7 @@ struct BalloonState {
 struct StentState {
   enum class Phase { kCrimped, kDeployed };
   Phase phase = Phase::kCrimped;
-  // (balloon nodes) while crimped: the largest radius the balloon gave it at each node (m)
+  // (rings, from its distal end) while crimped: the largest radius its balloon gave each ring (m)
   std::vector<double> expanded;
   // Deployed: its rings in the rest anatomy, along one segment, and their radii (m).
   int segment = -1;
@@ -116,6 +122,8 @@ struct ProcedureState {
   std::vector<LesionOpening> opening, max_opening, stent_hold;
   // (lesion) how far the inflated balloons push each lesion open this step
   std::vector<LesionOpening> pushed;
+  // (lesion) how far crossing instruments have compressed each lesion (plastic)
+  std::vector<LesionOpening> crossed;
   std::vector<ProcedureEvent> events;  // in order (capacity reserved: rare)
   bool refusing = false;  // a pressure with no balloon in the patient was refused (logged once)
 
@@ -142,13 +150,14 @@ void procedure_before_step(const ProcedureModel& model, const SolverModel& solve
 void procedure_fit(const ProcedureModel& model, const SolverModel& solver_model,
                    const VesselTree& tree, const CardiacMotion* motion, VesselWall& wall, double t1,
                    ProcedureState& state, SolverState& solver);
-// After the solver's step: a stent whose balloon deflated stays (deployed), at its expanded
-// radius less its acute recoil, holding the lesion open; a deployed stent that an inflated balloon
-// grips is enlarged by it (post-dilation) and moves with it; lesions recoil where no balloon
-// holds them.
+// After the solver's step (its wall contacts in `solver_ws`): a stent whose balloon deflated
+// stays (deployed), at its expanded radius less its acute recoil, holding the lesion open; a
+// deployed stent that an inflated balloon grips is enlarged by it (post-dilation) and moves with
+// it; a lesion pressed by an instrument beyond its crossing force widens there (Dotter effect).
 void procedure_after_step(const ProcedureModel& model, const SolverModel& solver_model,
                           const VesselTree& tree, const CardiacMotion* motion, double time,
-                          ProcedureState& state, const SolverState& solver);
+                          double dt, ProcedureState& state, const SolverState& solver,
+                          const SolverWorkspace& solver_ws);
 
 // ---------------------------------------------------------------------------------------------
 // What a cardiologist measures (docs/procedure.md)

@@ -103,6 +103,49 @@ TEST(Balloon, InflationInANarrowTubeStopsAtTheWall) {
   EXPECT_GE(checked, 8);
 }
 
+// An 80 % lesion (0.6 mm minimal lumen) is narrower than the folded 2.5 mm balloon's shaft
+// (0.70 mm). A rigid plaque stops it short of the throat; a plaque that yields to the crossing
+// catheter (the Dotter effect, the default crossing force) lets it across, widened by at most the
+// shaft's diameter (a lumen of twice its radius), never narrowing on the way.
+TEST(Balloon, ATightLesionYieldsToTheCrossingCatheterOnly) {
+  test::TubeSpecs t;
+  t.lesion_percent = 80;
+  t.catalogue = "balloon-sc-2.5x15";
+  auto cross = [&](const std::string& lesions, double* throat_after) {
+    t.lesions_json = lesions;
+    Scenario sc = test::balloon_in_tube(scratch("tight"), t);
+    Simulator sim(sc);
+    StepCommands cmds;
+    cmds.reset(2);
+    for (DriveCommand& d : cmds.drive) d.mode = DriveCommand::Mode::kPosition;
+    const SimModel& md = sim.model();
+    auto throat = [&] {
+      return lumen_radius_now(md.procedure, md.tree, sim.state().procedure, 0, 0.066);
+    };
+    double last = throat();
+    EXPECT_NEAR(last, 0.2 * 1.5e-3, 1e-6);
+    const double wire = test::kAccessS - 0.030;
+    const double balloon = test::kAccessS - 0.050;
+    while (sim.time() < 6.0) {
+      cmds.drive[0].translation = std::min(wire, 0.05 * sim.time());
+      cmds.drive[1].translation = std::min(balloon, 0.05 * sim.time() - 0.005);
+      sim.step(cmds);
+      EXPECT_GE(throat(), last) << "t " << sim.time();
+      last = throat();
+    }
+    *throat_after = last;
+    return sim.tip_location(1).loc.distance;  // the balloon catheter's tip along the tube
+  };
+  double rigid_throat = 0.0, yielding_throat = 0.0;
+  const double rigid = cross(R"([{"crossing_force_n": 100}])", &rigid_throat);
+  const double yielding = cross("", &yielding_throat);
+  EXPECT_GT(rigid, test::kLesionS0 + 2e-3) << "stopped in the lesion";
+  EXPECT_DOUBLE_EQ(rigid_throat, 0.2 * 1.5e-3);
+  EXPECT_LT(yielding, test::kLesionS0 - 5e-3) << "across it";
+  EXPECT_GT(yielding_throat, 0.33e-3);
+  EXPECT_LE(yielding_throat, 2.0 * 0.35e-3 + 1e-9) << "by the shaft, not to the vessel";
+}
+
 // A 60 % lesion (1.2 mm minimal lumen in a 3 mm tube) and a 3.0 mm balloon: below the lesion's
 // opening pressure (6 atm, the default) it holds the balloon's waist; from it on the minimal lumen
 // grows with pressure, never shrinking; deflated, the lesion gives back its recoil fraction (0.3)
@@ -111,7 +154,8 @@ TEST(Balloon, ALesionHoldsThenOpensMonotonicallyAndRecoils) {
   test::TubeSpecs t;
   t.radius_mm = 1.5;
   t.lesion_percent = 60;
-  t.lesions_json = R"([{"opening_pressure_atm": 6, "recoil": 0.3}])";
+  // (crossing_force_n: the plaque does not yield to the folded balloon crossing it)
+  t.lesions_json = R"([{"opening_pressure_atm": 6, "recoil": 0.3, "crossing_force_n": 100}])";
   BalloonRun r(test::balloon_in_tube(scratch("lesion"), t), 0.066);
   const SimModel& md = r.sim.model();
   auto throat = [&] {  // the lumen's radius at the lesion's middle now
@@ -234,6 +278,7 @@ TEST(Stent, IsAWallThatMovesWithTheBeatingVessel) {
   Scenario sc = load_scenario(default_scenarios_dir() / "default.json");
   sc.autopilot.clear();
   sc.timeline = "unused.json";
+  sc.instruments.resize(3);  // the guide and the two wires
   sc.instruments.push_back({"stent", "stent-cocr-3.0x18", "catheter", "coronary_wire"});
   Simulator sim(sc);
   const SimModel& md = sim.model();
