@@ -95,6 +95,14 @@ class RunDisplay : public RunObserver {
   std::string last_status_;
 };
 
+// True when one of the scenario's instruments is a balloon catheter or a stent system.
+bool has_balloon(const Scenario& sc) {
+  const InstrumentCatalogue cat = load_catalogue(default_catalogue_dir());
+  for (const ScenarioInstrument& si : sc.instruments)
+    if (const InstrumentSpec* s = cat.find(si.catalogue); s && s->balloon) return true;
+  return false;
+}
+
 int cmd_run(const RunOptions& o) {
   const fs::path file = find_scenario(o.scenario, "run", "SCENARIO");
   Scenario sc = load_scenario(file);
@@ -120,6 +128,9 @@ int cmd_run(const RunOptions& o) {
   if (!device && !sc.timeline.empty()) {
     timeline = ScriptedTimeline::load(sc.base_dir / sc.timeline);
     timeline->bind(names);
+    if (timeline->inflates() && !has_balloon(sc))
+      throw InputError(timeline->source(), "balloon_pressure_atm",
+                       "expected a balloon or stent catheter in the scenario to inflate");
   }
   const StopOnSignal stop_on_signal;
 

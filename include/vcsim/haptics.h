@@ -108,6 +108,9 @@ class ScriptedTimeline : public InputSource {
   void publish(std::span<const HandFeedback> feedback) override;
 
   double duration() const;  // time of the last keyframe (s)
+  // True when a keyframe gives a balloon pressure above 0 (a scenario without a balloon refuses it).
+  bool inflates() const;
+  const std::string& source() const { return source_; }
   const std::vector<std::string>& instrument_names() const { return names_; }  // sorted
   const std::vector<HandFeedback>& last_feedback() const { return feedback_; }
 

@@ -64,9 +64,12 @@ struct Landmark {
 // retry when stuck); `follower` keeps its tip `follow_gap` m behind the leader's tip (a catheter
 // over its wire), other instruments hold. kWithdraw: `instrument` is pulled back to `depth`
 // (0 = out of the patient), or to `depth` behind the depth of `relative_to`. kInject: the syringe
-// gives `flow` for `duration` s. kWait: nothing for `duration` s.
+// gives `flow` for `duration` s. kWait: nothing for `duration` s. kPlace: `instrument` (a balloon or
+// stent catheter on its wire) is advanced until the middle of its two markers lies on the middle
+// of lesion `lesion`, as seen along the route, within `tolerance`. kInflate: the indeflator ramps
+// to `pressure` over `ramp` s and holds it `duration` s. kDeflate: no pressure for `duration` s.
 struct AutopilotPhase {
-  enum class Kind { kNavigate, kWithdraw, kInject, kWait };
+  enum class Kind { kNavigate, kWithdraw, kInject, kWait, kPlace, kInflate, kDeflate };
   Kind kind = Kind::kNavigate;
   std::string instrument;
   std::string goal_segment;
@@ -80,6 +83,10 @@ struct AutopilotPhase {
   double duration = 0.0;     // s (inject, wait)
   double speed = 0.1;        // m/s, advance and withdrawal speed
   double seat = 0.0;         // m pushed on once the goal is reached (navigate)
+  int lesion = 0;            // (place)
+  double approach_speed = 0.01;  // m/s over the last 70 mm of the route (place: the coronary)
+  double pressure = 0.0;     // Pa (inflate)
+  double ramp = 3.0;         // s (inflate)
 };
 const char* to_string(AutopilotPhase::Kind k);
 
@@ -160,6 +167,11 @@ struct Scenario {
   std::vector<ScenarioInstrument> instruments;
   // How each lesion of the anatomy takes a balloon (one per lesion; empty: the defaults).
   std::vector<LesionMechanics> lesions;
+  // What the treatment must achieve for the run to succeed, besides its landmarks.
+  struct Targets {
+    double residual_stenosis = -1.0;  // fraction: every lesion's diameter stenosis below it (<0: none)
+    bool stent_covers_lesion = false;  // a stent deployed over its lesion with 2 mm margins
+  } targets;
   std::string timeline;  // timeline file (relative to the scenario's folder); "" = autopilot
   std::vector<AutopilotPhase> autopilot;
   std::vector<Landmark> landmarks;
@@ -569,6 +581,9 @@ class Autopilot {
   std::string status_;
   double next_trace_ = 0.0;
   double aim_distance_ = 0.0, aim_angle_ = 0.0;  // of the leader's tip to its aim (trace)
+  double pressure_ = 0.0;      // Pa commanded to the indeflator
+  double placed_since_ = -1.0;  // s: the markers within tolerance of the target since then
+  void place(const SimModel& model, const SimState& state, const AutopilotPhase& ph);
 };
 
 // The autopilot as an input source of a simulator: it reads the simulator's state as a trainee

@@ -153,6 +153,12 @@ double ScriptedTimeline::duration() const {
   return duration_;
 }
 
+bool ScriptedTimeline::inflates() const {
+  for (const ScalarKey& k : balloon_)
+    if (k.value > 0.0) return true;
+  return false;
+}
+
 namespace {
 
 // Index of the last key with time <= t, or -1.

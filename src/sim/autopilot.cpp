@@ -17,6 +17,7 @@ namespace {
 
 constexpr double kSpacing = 1e-3;       // m between route points
 constexpr double kProgressStep = 1e-3;  // m of progress that counts as moving on
+constexpr double kPlaceApproach = 70e-3;  // m of route before a lesion: out of the guide (place)
 constexpr double kLookAhead = 12e-3;    // m along the route the tip is aimed at
 constexpr double kBranchAhead = 40e-3;
 constexpr double kHoldLost = 1.5;       // s out of reach before a held tip counts as fallen out
@@ -98,6 +99,23 @@ void Autopilot::start_phase(const SimModel& md, const SimState& st) {
   follower_ = ph.follower.empty() ? -1 : sc.find_instrument(ph.follower);
   relative_ = ph.relative_to.empty() ? -1 : sc.find_instrument(ph.relative_to);
   status_ = std::string(to_string(ph.kind)) + (ph.instrument.empty() ? "" : " " + ph.instrument);
+  placed_since_ = -1.0;
+  if (ph.kind == AutopilotPhase::Kind::kPlace) {
+    // The route to the lesion's middle, which the markers' midpoint is brought to.
+    const VesselTree& tree = md.tree;
+    const LesionModel& lm = md.procedure.lesions[static_cast<std::size_t>(ph.lesion)];
+    const TreeLocation goal{tree.lesions[static_cast<std::size_t>(lm.lesion)].segment,
+                            0.5 * (lm.span.s0 + lm.span.s1)};
+    route_ = route(tree, tree.access, goal, kSpacing);
+    route_s_.assign(route_.size(), 0.0);
+    for (std::size_t k = 1; k < route_.size(); ++k)
+      route_s_[k] = route_s_[k - 1] + (route_[k] - route_[k - 1]).norm();
+    progress_ = best_progress_ = 0.0;
+    best_time_ = st.time();
+    depth_at_best_ = -1.0;
+    status_ += " across lesion " + std::to_string(ph.lesion);
+    return;
+  }
   if (ph.kind != AutopilotPhase::Kind::kNavigate) return;
   const VesselTree& tree = md.tree;
   goal_segment_ = tree.find(ph.goal_segment);
@@ -260,6 +278,65 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
   if (follower_ >= 0) depth_[follower_] = std::max(0.0, depth_[L] - ph.follow_gap);
 }
 
+// The markers' midpoint of a balloon or stent catheter (the balloon's middle as fluoroscopy shows
+// it), at rest, brought along the route to the lesion's middle: advanced (slower near it), pulled
+// back if past it; placed when within tolerance for 0.2 s.
+void Autopilot::place(const SimModel& md, const SimState& st, const AutopilotPhase& ph) {
+  const int L = leader_;
+  const double dt = md.dt();
+  const RodModel& rod = md.solver.instruments[static_cast<std::size_t>(L)].rod();
+  const std::vector<double>& markers = md.specs[static_cast<std::size_t>(L)].radiopacity.markers;
+  double from_tip = 0.0;
+  for (double m : markers) from_tip += m / static_cast<double>(markers.size());
+  const double s_mid = rod.length - from_tip;
+  int i = rod.n - 1;
+  while (i > 0 && rod.node_s[i] > s_mid) --i;
+  const Vec3& a = st.solver.instruments[static_cast<std::size_t>(L)].rod.x[i];
+  const Vec3& b = st.solver.instruments[static_cast<std::size_t>(L)].rod.x[std::min(i + 1, rod.n - 1)];
+  const double span = std::min(i + 1, rod.n - 1) > i ? rod.node_s[i + 1] - rod.node_s[i] : 1.0;
+  const Vec3 p = a + std::clamp((s_mid - rod.node_s[i]) / span, 0.0, 1.0) * (b - a);
+  Vec3 X = p;
+  if (md.motion)
+    for (int k = 0; k < 3; ++k) X = p - md.motion->displacement(X, st.time());
+  const std::size_t best =
+      nearest_point(route_, X, progress_ == 0.0 ? nullptr : &route_s_, progress_, 0.03);
+  progress_ = route_s_[best];
+  const double remaining = route_s_.back() - progress_;
+  const double depth = st.solver.instruments[static_cast<std::size_t>(L)].drive.depth;
+  if (std::abs(remaining) < ph.tolerance) {
+    if (placed_since_ < 0.0) placed_since_ = st.time();
+    if (st.time() - placed_since_ >= 0.2) {
+      ++phase_;
+      start_phase(md, st);
+    }
+    return;
+  }
+  placed_since_ = -1.0;
+  // Stuck (a lesion the catheter does not cross, a guide it pushes out): the hand gives no more
+  // than max_slack of insertion without the markers moving on, then gives up.
+  if (progress_ > best_progress_ + kProgressStep) {
+    best_progress_ = progress_;
+    best_time_ = st.time();
+    depth_at_best_ = depth;
+  }
+  if (depth_at_best_ < 0.0) depth_at_best_ = depth;
+  if (remaining > 0.0 && depth - depth_at_best_ > max_slack &&
+      st.time() - best_time_ > stuck_time) {
+    failed_ = true;
+    status_ = "gave up: " + ph.instrument + " does not advance across lesion " +
+              std::to_string(ph.lesion);
+    depth_[L] = depth_at_best_;
+    return;
+  }
+  // At the approach speed once out of the guide in the coronary (the last kApproach of the
+  // route), slower still over the last 10 mm; the command kept near the real depth (the catheter
+  // may lag).
+  const double v = std::clamp(std::abs(remaining) / 10e-3, 0.2, 1.0) *
+                   (std::abs(remaining) > kPlaceApproach ? ph.speed : ph.approach_speed);
+  depth_[L] = std::clamp(depth_[L] + std::clamp(remaining, -v * dt, v * dt), depth - 0.005,
+                         depth + 0.005);
+}
+
 void Autopilot::command(const SimModel& md, const SimState& st, StepCommands& out) {
   const Scenario& sc = md.scenario;
   const int n = md.num_instruments();
@@ -304,8 +381,29 @@ void Autopilot::command(const SimModel& md, const SimState& st, StepCommands& ou
       case AutopilotPhase::Kind::kNavigate:
         navigate(md, st, ph);
         break;
+      case AutopilotPhase::Kind::kPlace:
+        place(md, st, ph);
+        break;
+      case AutopilotPhase::Kind::kInflate: {
+        // The indeflator turned up to the pressure over the ramp, then held.
+        const double since = t - phase_start_;
+        pressure_ = ph.ramp > 0.0 ? ph.pressure * std::min(1.0, since / ph.ramp) : ph.pressure;
+        if (since >= ph.ramp + ph.duration) {
+          ++phase_;
+          start_phase(md, st);
+        }
+        break;
+      }
+      case AutopilotPhase::Kind::kDeflate:
+        pressure_ = 0.0;
+        if (t - phase_start_ >= ph.duration) {
+          ++phase_;
+          start_phase(md, st);
+        }
+        break;
     }
   }
+  out.balloon_pressure = pressure_;
   if (trace && t >= next_trace_) {
     next_trace_ = t + 0.25;
     std::fprintf(stderr,

@@ -7,6 +7,7 @@
 #include <ostream>
 
 #include "vcsim/sim.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
@@ -39,9 +40,28 @@ RunOutcome run_outcome(const Simulator& sim, const RunReport& r) {
   std::vector<std::string> missed;
   for (std::size_t k = 0; k < m.landmarks.size(); ++k)
     if (!m.landmarks[k].reached) missed.push_back(sc.landmarks[k].name);
+  // The treatment's targets.
+  const Scenario::Targets& tg = sc.targets;
+  const SimModel& md = sim.model();
+  if (tg.residual_stenosis >= 0.0 || tg.stent_covers_lesion) {
+    const ProcedureOutcome po = procedure_outcome(md.procedure, md.tree, sim.state().procedure);
+    for (std::size_t k = 0; k < po.lesions.size(); ++k)
+      if (tg.residual_stenosis >= 0.0 && po.lesions[k].stenosis_now >= tg.residual_stenosis)
+        missed.push_back("residual stenosis below " +
+                         std::to_string(static_cast<int>(std::lround(100 * tg.residual_stenosis))) +
+                         " % at lesion " + std::to_string(k));
+    if (tg.stent_covers_lesion) {
+      bool covered = false;
+      for (const StentOutcome& so : po.stents)
+        covered = covered || (so.deployed && so.lesion >= 0 && !so.geographic_miss);
+      if (!covered) missed.push_back("a stent covering the lesion");
+    }
+  }
   RunOutcome o;
   o.success = missed.empty();
   o.text = "all landmarks reached";
+  if (o.success && (tg.residual_stenosis >= 0.0 || tg.stent_covers_lesion))
+    o.text = "all landmarks and treatment targets reached";
   if (!o.success) {
     o.text = "not reached:";
     for (const auto& s : missed) o.text += " '" + s + "'";
@@ -108,6 +128,54 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
                    {"time_s", l.reached ? nlohmann::json(l.time) : nlohmann::json(nullptr)}});
   }
   j["landmarks"] = lms;
+  // The treatment (docs/procedure.md): lesions, balloons, stents, events.
+  const SimModel& md = sim.model();
+  if (!md.procedure.lesions.empty() || !md.procedure.balloons.empty()) {
+    const ProcedureOutcome po = procedure_outcome(md.procedure, md.tree, sim.state().procedure);
+    nlohmann::json lesions = nlohmann::json::array();
+    for (std::size_t k = 0; k < po.lesions.size(); ++k) {
+      const LesionOutcome& o = po.lesions[k];
+      lesions.push_back({{"segment", md.tree.segments[md.tree.lesions[k].segment].name},
+                         {"reference_diameter_mm", o.reference_diameter * 1e3},
+                         {"mld_before_mm", o.mld_before * 1e3},
+                         {"mld_after_mm", o.mld_now * 1e3},
+                         {"diameter_stenosis_before_percent", 100.0 * o.stenosis_before},
+                         {"diameter_stenosis_after_percent", 100.0 * o.stenosis_now}});
+    }
+    nlohmann::json balloons = nlohmann::json::array();
+    std::size_t stent_k = 0;
+    for (std::size_t b = 0; b < po.balloons.size(); ++b) {
+      const BalloonOutcome& o = po.balloons[b];
+      const int inst = md.procedure.balloons[b].instrument;
+      nlohmann::json e = {{"instrument", sc.instruments[inst].name},
+                          {"catalogue", sc.instruments[inst].catalogue},
+                          {"max_pressure_atm", o.max_pressure / kAtm},
+                          {"balloon_to_artery_ratio", o.max_ratio},
+                          {"ruptured", o.ruptured},
+                          {"over_expanded", o.over_expanded}};
+      if (md.procedure.balloons[b].stent) {
+        const StentOutcome& so = po.stents[stent_k++];
+        e["stent"] = {{"deployed", so.deployed},
+                      {"diameter_min_mm", so.diameter_min * 1e3},
+                      {"diameter_max_mm", so.diameter_max * 1e3},
+                      {"lesion", so.lesion},
+                      {"longitudinal_offset_mm", so.longitudinal_offset * 1e3},
+                      {"geographic_miss", so.geographic_miss},
+                      {"malapposition_mm", so.malapposition * 1e3}};
+      }
+      balloons.push_back(e);
+    }
+    nlohmann::json events = nlohmann::json::array();
+    for (const ProcedureEvent& ev : sim.state().procedure.events)
+      events.push_back({{"time_s", ev.time},
+                        {"event", to_string(ev.kind)},
+                        {"instrument", ev.balloon >= 0
+                                           ? nlohmann::json(sc.instruments[md.procedure.balloons[
+                                                 static_cast<std::size_t>(ev.balloon)].instrument]
+                                                                .name)
+                                           : nlohmann::json(nullptr)}});
+    j["procedure"] = {{"lesions", lesions}, {"balloons", balloons}, {"events", events}};
+  }
   nlohmann::json input = {{"type", r.input_type}, {"realtime", r.realtime}};
   if (r.input_type == "igtl") {
     input["address"] = r.device_address;

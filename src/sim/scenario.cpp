@@ -43,8 +43,23 @@ AutopilotPhase parse_phase(const Json& j, const std::string& src, const std::str
   } else if (action == "wait") {
     p.kind = AutopilotPhase::Kind::kWait;
     p.duration = f.positive_or("duration_s", 1.0);
+  } else if (action == "place") {
+    p.kind = AutopilotPhase::Kind::kPlace;
+    p.instrument = f.text("instrument");
+    p.lesion = f.integer_or("lesion", 0, 1000, 0);
+    p.tolerance = f.positive_or("tolerance_mm", 1.0) * kMm;
+    p.approach_speed = f.positive_or("approach_speed_mm_s", p.approach_speed / kMm) * kMm;
+  } else if (action == "inflate") {
+    p.kind = AutopilotPhase::Kind::kInflate;
+    p.pressure = f.in_range("pressure_atm", 0.0, 30.0) * kAtm;
+    p.ramp = f.nonnegative_or("ramp_s", 3.0);
+    p.duration = f.nonnegative_or("hold_s", 10.0);
+  } else if (action == "deflate") {
+    p.kind = AutopilotPhase::Kind::kDeflate;
+    p.duration = f.positive_or("duration_s", 3.0);
   } else {
-    f.fail("action", "expected navigate, withdraw, inject or wait, got '" + action + "'");
+    f.fail("action", "expected navigate, withdraw, inject, wait, place, inflate or deflate, got '" +
+                         action + "'");
   }
   p.speed = f.in_range_or("speed_mm_s", 0.0, 500.0, 100.0) * kMm;
   // Keys that the action does not use (a "goal" on a withdrawal) are refused here.
@@ -64,6 +79,12 @@ const char* to_string(AutopilotPhase::Kind k) {
       return "inject";
     case AutopilotPhase::Kind::kWait:
       return "wait";
+    case AutopilotPhase::Kind::kPlace:
+      return "place";
+    case AutopilotPhase::Kind::kInflate:
+      return "inflate";
+    case AutopilotPhase::Kind::kDeflate:
+      return "deflate";
   }
   return "?";
 }
@@ -168,11 +189,13 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
                        "expected a wire in the same outer instrument as this one ('" + si.over +
                            "' is inside '" + sc.instruments[w].inside + "', this inside '" +
                            si.inside + "')");
-    for (std::size_t e = 0; e < i; ++e)
-      if (sc.instruments[e].over == si.over)
-        throw InputError(src, field,
-                         "expected one instrument over a wire ('" + sc.instruments[e].name +
-                             "' already rides on '" + si.over + "')");
+  }
+  if (f.has("targets")) {
+    JsonFields g = f.object("targets");
+    if (g.has("residual_stenosis_percent"))
+      sc.targets.residual_stenosis = g.in_range("residual_stenosis_percent", 0.0, 100.0) / 100.0;
+    sc.targets.stent_covers_lesion = g.boolean_or("stent_covers_lesion", false);
+    g.finish();
   }
   if (f.has("lesions")) {
     const Json& ls = f.array("lesions");
@@ -183,6 +206,9 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
           g.in_range_or("opening_pressure_atm", 0.0, 30.0, lm.opening_pressure / kAtm) * kAtm;
       lm.recoil = g.number_or("recoil", lm.recoil);
       if (!(lm.recoil >= 0.0 && lm.recoil < 1.0)) g.fail("recoil", "expected a fraction in [0, 1)");
+      lm.crossing_force = g.in_range_or("crossing_force_n", 0.0, 100.0, lm.crossing_force);
+      lm.crossing_rate =
+          g.in_range_or("crossing_rate_mm_s", 0.0, 100.0, lm.crossing_rate / kMm) * kMm;
       g.finish();
       sc.lesions.push_back(lm);
     }

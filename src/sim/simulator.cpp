@@ -75,10 +75,17 @@ std::shared_ptr<const SimModel> build_sim_model(Scenario scenario) {
           "expected an instrument of the scenario, got '" + sc.landmarks[i].instrument + "'");
     md.landmark_ids.push_back({inst, seg});
   }
-  for (std::size_t i = 0; i < sc.autopilot.size(); ++i)
-    if (sc.autopilot[i].kind == AutopilotPhase::Kind::kNavigate)
-      segment_named(md.tree, sc.autopilot[i].goal_segment, src,
-                    "autopilot[" + std::to_string(i) + "].goal.segment");
+  for (std::size_t i = 0; i < sc.autopilot.size(); ++i) {
+    const AutopilotPhase& ph = sc.autopilot[i];
+    const std::string field = "autopilot[" + std::to_string(i) + "]";
+    if (ph.kind == AutopilotPhase::Kind::kNavigate)
+      segment_named(md.tree, ph.goal_segment, src, field + ".goal.segment");
+    if (ph.kind == AutopilotPhase::Kind::kPlace &&
+        (ph.lesion < 0 || ph.lesion >= static_cast<int>(md.tree.lesions.size())))
+      throw InputError(src, field + ".lesion",
+                       "expected a lesion of the anatomy (it has " +
+                           std::to_string(md.tree.lesions.size()) + ")");
+  }
   const std::filesystem::path cat_dir = default_catalogue_dir();
   const InstrumentCatalogue cat = load_catalogue(cat_dir);
   for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
@@ -183,6 +190,17 @@ std::shared_ptr<const SimModel> build_sim_model(Scenario scenario) {
                          std::to_string(md.tree.lesions.size()) + "), got " +
                          std::to_string(sc.lesions.size()));
   md.procedure = make_procedure_model(md.tree, md.lumen, sv, md.specs, sc.lesions);
+  // What the autopilot's plan does with balloons needs them.
+  for (std::size_t i = 0; i < sc.autopilot.size(); ++i) {
+    const AutopilotPhase& ph = sc.autopilot[i];
+    const std::string field = "autopilot[" + std::to_string(i) + "]";
+    if (ph.kind == AutopilotPhase::Kind::kPlace &&
+        !md.specs[static_cast<std::size_t>(sc.find_instrument(ph.instrument))].balloon)
+      throw InputError(src, field + ".instrument",
+                       "expected a balloon or stent catheter, got '" + ph.instrument + "'");
+    if ((ph.kind == AutopilotPhase::Kind::kInflate) && md.procedure.balloons.empty())
+      throw InputError(src, field, "expected a balloon or stent catheter in the scenario");
+  }
   return model;
 }
 
@@ -502,8 +520,8 @@ void sim_step(const SimModel& md, SimState& st, SimWorkspace& ws, const StepComm
   const double t2 = tick();
   // 3. procedure: stents released, gripped, carried
   if (!md.procedure.balloons.empty())
-    procedure_after_step(md.procedure, md.solver, md.tree, motion, st.time(), st.procedure,
-                         st.solver);
+    procedure_after_step(md.procedure, md.solver, md.tree, motion, st.time(), dt, st.procedure,
+                         st.solver, s.solver);
   // 4. contrast: an injection enters where the outermost instrument's tip is (the guide)
   TreeLocation at;
   if (cmds.syringe_flow > 0.0 && st.contrast.segment < 0) {

@@ -243,13 +243,19 @@ void SolverModel::validate(const std::string& source) const {
     if (coupled(cm.inner, cm.outer, c))
       throw InputError(source, field, "expected each instrument in another's lumen once");
     require_nonnegative(cm.mu, source, field + ".mu");
-    // An earlier outer of the same inner must lie inside this one (innermost first).
-    for (std::size_t k = 0; k < c; ++k)
-      if (couplings[k].inner == cm.inner &&
-          !coupled(couplings[k].outer, cm.outer, couplings.size()))
+    // An earlier outer of the same inner must lie inside this one (innermost first), or beside
+    // it in a third (two catheters riding one wire in turn, in one guide).
+    for (std::size_t k = 0; k < c; ++k) {
+      if (couplings[k].inner != cm.inner) continue;
+      const int o = couplings[k].outer;
+      bool beside = false;
+      for (const CouplingModel& x : couplings)
+        beside = beside || (x.inner == o && coupled(cm.outer, x.outer, couplings.size()));
+      if (!coupled(o, cm.outer, couplings.size()) && !beside)
         throw InputError(source, field,
                          "expected the outers of instrument " + std::to_string(cm.inner) +
-                             " innermost first, each inside the next");
+                             " innermost first, each inside the next or beside it");
+    }
   }
   require_positive(substeps.speed, source, "substeps.speed");
   require_positive(substeps.travel, source, "substeps.travel");

@@ -35,11 +35,12 @@ void expect_error(const std::string& text, const std::string& field) {
 TEST(Scenario, DefaultParses) {
   const Scenario sc = load_scenario(default_scenarios_dir() / "default.json");
   EXPECT_EQ(sc.name, "default");
-  ASSERT_EQ(sc.instruments.size(), 3u);
+  ASSERT_EQ(sc.instruments.size(), 4u);
   EXPECT_EQ(sc.instruments[1].inside, "catheter");
+  EXPECT_EQ(sc.instruments[3].over, "coronary_wire");
   EXPECT_TRUE(sc.beating);
   EXPECT_LE(sc.dt, 1e-3);  // 1 kHz or faster
-  EXPECT_EQ(sc.landmarks.size(), 3u);
+  EXPECT_EQ(sc.landmarks.size(), 4u);
   EXPECT_DOUBLE_EQ(sc.fluoro.fps, 15.0);
   EXPECT_FALSE(sc.autopilot.empty());
   EXPECT_DOUBLE_EQ(sc.sheath_length, 25e-3);
