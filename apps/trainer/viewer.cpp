@@ -1,0 +1,990 @@
+// The trainer's window (trainer.h): GLFW + Dear ImGui on the main thread, the fluoroscopy drawn
+// into the window's GL context from the latest copy of the state the physics thread hands over
+// (physics.h), the controls (controls.h), scripted input (script.h), cine, screenshots, and the
+// session's files at the end. docs/trainer.md describes what the person sees and does.
+#define GL_GLEXT_PROTOTYPES
+#include <GL/glcorearb.h>
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+#include <backends/imgui_impl_glfw.h>
+#include <backends/imgui_impl_opengl3.h>
+#include <imgui.h>
+#include <stb_image_write.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+#include <thread>
+
+#include "controls.h"
+#include "physics.h"
+#include "script.h"
+#include "trainer.h"
+#include "view3d.h"
+#include "vcsim/render.h"
+#include "vcsim/units.h"
+
+namespace vcsim::trainer {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string g_glfw_error;
+void on_glfw_error(int code, const char* what) {
+  g_glfw_error = what ? what : "";
+  (void)code;
+}
+
+// "LAO 40  CAU 30": the angles as a C-arm's display shows them.
+std::string angles_text(double primary, double secondary) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%s %.0f\xc2\xb0  %s %.0f\xc2\xb0", primary >= 0 ? "LAO" : "RAO",
+                std::abs(primary), secondary >= 0 ? "CRA" : "CAU", std::abs(secondary));
+  return buf;
+}
+
+std::string clock_text(double s) {
+  char buf[32];
+  const int m = static_cast<int>(s / 60.0);
+  std::snprintf(buf, sizeof buf, "%02d:%04.1f", m, s - 60.0 * m);
+  return buf;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  const std::size_t k = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  return v[k];
+}
+
+// The display of an image system: a grey texture (row 0 at the top) shown in ImGui.
+struct GreyTexture {
+  GLuint id = 0;
+  int size = 0;
+  explicit GreyTexture(int n) : size(n) {
+    glGenTextures(1, &id);
+    glBindTexture(GL_TEXTURE_2D, id);
+    const std::vector<std::uint8_t> black(static_cast<std::size_t>(n) * n, 0);
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+    glTexImage2D(GL_TEXTURE_2D, 0, GL_R8, n, n, 0, GL_RED, GL_UNSIGNED_BYTE, black.data());
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    const GLint swizzle[] = {GL_RED, GL_RED, GL_RED, GL_ONE};
+    glTexParameteriv(GL_TEXTURE_2D, GL_TEXTURE_SWIZZLE_RGBA, swizzle);
+  }
+  ~GreyTexture() { glDeleteTextures(1, &id); }
+  void upload(const std::vector<std::uint8_t>& img) {
+    glBindTexture(GL_TEXTURE_2D, id);
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+    glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, size, size, GL_RED, GL_UNSIGNED_BYTE, img.data());
+  }
+};
+
+struct CineRun {
+  std::vector<std::vector<std::uint8_t>> frames;
+  bool saved = false;
+  fs::path dir;
+};
+
+// Memory for cine: at most this many frames in all (512 x 512: 256 kB each, 150 MB).
+constexpr std::size_t kMaxCineFrames = 600;
+constexpr double kCineFps = 15.0;
+
+class Viewer {
+ public:
+  Viewer(TrainerOptions& o, GLFWwindow* win);
+  ~Viewer();
+  int run(double started_us);
+
+  // The GLFW callbacks land here (and the script calls the same).
+  void on_key(int key, int action, int mods);
+  void on_mouse_button(int button, int action, int mods);
+  void on_cursor(double x, double y);
+  void on_scroll(double dx, double dy);
+
+ private:
+  void frame();
+  void run_script(double now);
+  void do_actions();
+  void do_action(Action a);
+  void render_xray();
+  void draw_ui();
+  void draw_fluoro_panel(float x, float y, float side);
+  void draw_side_panel(float x, float y, float w, float h);
+  void draw_menu();
+  void take_screenshot(const fs::path& file);
+  void save_cine();
+  void finish();
+  nlohmann::json overlay_json() const;
+  fs::path out_path(const std::string& name) const {
+    const fs::path p(name);
+    return p.is_absolute() ? p : o_.out / p;
+  }
+
+  TrainerOptions& o_;
+  GLFWwindow* win_;
+  PhysicsThread physics_;
+  Controls controls_;
+  SimFluoroscopy fluoro_;
+  GreyTexture tex_;
+  std::unique_ptr<View3D> view3d_;
+  InstrumentCatalogue catalogue_;
+  Vec3 home_;
+  ImageChainSettings chain_;
+  ViewState view_;
+  std::vector<std::uint8_t> image_;
+  bool have_image_ = false;
+  std::uint64_t drawn_version_ = 0;
+  std::int64_t xray_frames_ = 0;
+  double render_s_ = 0.0;
+  bool xray_now_ = false;
+  // Cine: runs recorded while the cine pedal is held, at 15 frames per simulated second.
+  std::vector<CineRun> cine_;
+  bool cine_open_ = false;
+  double next_cine_ = 0.0;
+  std::size_t cine_total_ = 0;
+  bool review_ = false;
+  std::size_t review_frame_ = 0;
+  double review_next_us_ = 0.0;
+  bool show3d_ = false, help_ = false;
+  std::string status_;
+  // Panels in window coordinates.
+  float fluoro_x_ = 0, fluoro_y_ = 0, fluoro_side_ = 0;
+  float view3d_rect_[4] = {0, 0, 0, 0};
+  bool orbiting_ = false;
+  double last_cursor_[2] = {0, 0};
+  // Script and measurement.
+  std::vector<ScriptEvent> script_;
+  std::size_t next_event_ = 0;
+  bool scripted_pad_ = false;
+  double t0_us_ = 0.0;
+  std::vector<fs::path> pending_shots_;
+  std::vector<std::string> shots_taken_;
+  std::vector<double> frame_us_;  // wall clock of each swap
+  std::vector<double> latency_ms_;
+  double session_start_us_ = 0.0;
+  double setup_s_ = 0.0;
+  double deploy_until_us_ = 0.0;
+};
+
+Viewer* g_viewer = nullptr;
+
+void key_cb(GLFWwindow*, int key, int, int action, int mods) {
+  if (g_viewer) g_viewer->on_key(key, action, mods);
+}
+void mouse_cb(GLFWwindow*, int button, int action, int mods) {
+  if (g_viewer) g_viewer->on_mouse_button(button, action, mods);
+}
+void cursor_cb(GLFWwindow*, double x, double y) {
+  if (g_viewer) g_viewer->on_cursor(x, y);
+}
+void scroll_cb(GLFWwindow*, double dx, double dy) {
+  if (g_viewer) g_viewer->on_scroll(dx, dy);
+}
+
+Viewer::Viewer(TrainerOptions& o, GLFWwindow* win)
+    : o_(o),
+      win_(win),
+      physics_(o.scenario, o.device.get()),
+      controls_(
+          [&] {
+            std::vector<std::string> n;
+            for (const ScenarioInstrument& si : o.scenario.instruments) n.push_back(si.name);
+            return n;
+          }(),
+          o.scenario),
+      fluoro_(physics_.model(), o.fluoro_size,
+              o.scenario.fluoro.energy_kev == 80 ? BeamEnergy::k80keV : BeamEnergy::k60keV),
+      tex_(o.fluoro_size),
+      home_(left_coronary_centre(physics_.model().tree)) {
+  chain_.dose = o.scenario.fluoro.dose;
+  try {
+    catalogue_ = load_catalogue(default_catalogue_dir());
+  } catch (const std::exception&) {
+    // The exchange menu is then empty; the session does not need it.
+  }
+  image_.assign(static_cast<std::size_t>(o.fluoro_size) * o.fluoro_size, 0);
+  if (o.bench) {
+    script_ = bench_script(o.bench_time, controls_.num_instruments());
+  } else if (!o.script.empty()) {
+    script_ = load_script(o.script);
+  }
+  g_viewer = this;
+}
+
+Viewer::~Viewer() {
+  g_viewer = nullptr;
+}
+
+void Viewer::on_key(int key, int action, int mods) {
+  if (ImGui::GetCurrentContext() && ImGui::GetIO().WantTextInput) return;
+  controls_.key(key, action, mods, now_us());
+}
+
+void Viewer::on_mouse_button(int button, int action, int mods) {
+  double x = 0, y = 0;
+  glfwGetCursorPos(win_, &x, &y);
+  if (button == GLFW_MOUSE_BUTTON_RIGHT || button == GLFW_MOUSE_BUTTON_LEFT) {
+    const bool in3d = show3d_ && x >= view3d_rect_[0] && x <= view3d_rect_[2] &&
+                      y >= view3d_rect_[1] && y <= view3d_rect_[3];
+    if (in3d && action == GLFW_PRESS) {
+      orbiting_ = true;
+      last_cursor_[0] = x;
+      last_cursor_[1] = y;
+      return;
+    }
+    if (action == GLFW_RELEASE) orbiting_ = false;
+  }
+  controls_.mouse_button(button, action, mods, x, y, now_us());
+}
+
+void Viewer::on_cursor(double x, double y) {
+  if (orbiting_ && view3d_) {
+    view3d_->orbit(x - last_cursor_[0], y - last_cursor_[1]);
+    last_cursor_[0] = x;
+    last_cursor_[1] = y;
+    return;
+  }
+  controls_.cursor(x, y, now_us());
+}
+
+void Viewer::on_scroll(double dx, double dy) {
+  double x = 0, y = 0;
+  glfwGetCursorPos(win_, &x, &y);
+  if (show3d_ && view3d_ && x >= view3d_rect_[0] && x <= view3d_rect_[2] && y >= view3d_rect_[1] &&
+      y <= view3d_rect_[3]) {
+    view3d_->zoom(dy);
+    return;
+  }
+  const bool over = x >= fluoro_x_ && x <= fluoro_x_ + fluoro_side_ && y >= fluoro_y_ &&
+                    y <= fluoro_y_ + fluoro_side_;
+  controls_.scroll(dx, dy, over, now_us());
+}
+
+void Viewer::run_script(double now) {
+  const double t = (now - t0_us_) * 1e-6;
+  while (next_event_ < script_.size() && script_[next_event_].t <= t) {
+    const ScriptEvent& e = script_[next_event_++];
+    switch (e.type) {
+      case ScriptEvent::Type::kKey:
+        on_key(e.key, e.action, e.mods);
+        break;
+      case ScriptEvent::Type::kMouse:
+        glfwSetCursorPos(win_, e.x, e.y);
+        on_mouse_button(e.key, e.action, e.mods);
+        break;
+      case ScriptEvent::Type::kCursor:
+        on_cursor(e.x, e.y);
+        break;
+      case ScriptEvent::Type::kGamepad:
+        scripted_pad_ = true;
+        controls_.gamepad(e.pad, now_us());
+        break;
+      case ScriptEvent::Type::kGamepadLost:
+        scripted_pad_ = true;
+        controls_.gamepad_lost(now_us());
+        break;
+      case ScriptEvent::Type::kScreenshot:
+        pending_shots_.push_back(out_path(e.file));
+        break;
+      case ScriptEvent::Type::kResize:
+        glfwSetWindowSize(win_, static_cast<int>(e.x), static_cast<int>(e.y));
+        break;
+      case ScriptEvent::Type::kClose:
+        glfwSetWindowShouldClose(win_, GLFW_TRUE);  // what the window's close button does
+        break;
+    }
+  }
+}
+
+void Viewer::do_actions() {
+  for (Action a : controls_.take_actions()) do_action(a);
+  // A stent deployment from the menu is a press of half a second.
+  if (deploy_until_us_ > 0.0 && now_us() > deploy_until_us_) {
+    deploy_until_us_ = 0.0;
+    controls_.set_deploy(false, now_us());
+  }
+}
+
+void Viewer::do_action(Action a) {
+  {
+    switch (a) {
+      case Action::kTogglePause:
+        physics_.request(Request::kTogglePause);
+        break;
+      case Action::kRewind:
+        physics_.request(Request::kRewind, 5.0);
+        break;
+      case Action::kRestart:
+        physics_.request(Request::kRestart);
+        break;
+      case Action::kToggleReview:
+        if (!cine_.empty() && !cine_.back().frames.empty()) {
+          review_ = !review_;
+          review_frame_ = 0;
+          review_next_us_ = 0.0;
+        } else {
+          status_ = "no cine run to review (hold C to record one)";
+        }
+        break;
+      case Action::kSaveCine:
+        save_cine();
+        break;
+      case Action::kToggle3D:
+        show3d_ = !show3d_;
+        break;
+      case Action::kToggleHelp:
+        help_ = !help_;
+        break;
+      case Action::kQuit:
+        glfwSetWindowShouldClose(win_, GLFW_TRUE);
+        break;
+    }
+  }
+}
+
+void Viewer::render_xray() {
+  const bool fluoro = controls_.fluoro_pedal(), cine = controls_.cine_pedal();
+  xray_now_ = (fluoro || cine) && !view_.paused;
+  if (!cine && cine_open_) cine_open_ = false;  // the cine pedal let go: the run is complete
+  if (!xray_now_ || view_.version == drawn_version_) return;
+  if (fluoro || cine) review_ = false;  // live images replace a review
+  CArmPose pose;
+  pose.primary_deg = controls_.primary_deg();
+  pose.secondary_deg = controls_.secondary_deg();
+  pose.fov = controls_.fov();
+  pose.isocentre = home_ + controls_.table_pan();
+  ImageChainSettings chain = chain_;
+  chain.seed = static_cast<std::uint64_t>(++xray_frames_);
+  const double t0 = now_us();
+  fluoro_.frame(view_.frame, pose, chain, image_);
+  tex_.upload(image_);
+  render_s_ += (now_us() - t0) * 1e-6;
+  have_image_ = true;
+  drawn_version_ = view_.version;
+  if (cine) {
+    if (!cine_open_) {
+      cine_.push_back({});
+      cine_open_ = true;
+      next_cine_ = view_.time;
+    }
+    if (view_.time >= next_cine_ - 1e-9 && cine_total_ < kMaxCineFrames) {
+      cine_.back().frames.push_back(image_);
+      ++cine_total_;
+      next_cine_ += 1.0 / kCineFps;
+    }
+  }
+}
+
+void Viewer::draw_fluoro_panel(float x, float y, float side) {
+  fluoro_x_ = x;
+  fluoro_y_ = y;
+  fluoro_side_ = side;
+  controls_.set_fluoro_area(x, y, x + side, y + side);
+  ImGui::SetNextWindowPos(ImVec2(x, y));
+  ImGui::SetNextWindowSize(ImVec2(side, side));
+  ImGui::PushStyleVar(ImGuiStyleVar_WindowPadding, ImVec2(0, 0));
+  ImGui::PushStyleVar(ImGuiStyleVar_WindowBorderSize, 0.0f);
+  ImGui::Begin("Fluoroscopy", nullptr,
+               ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_NoMove |
+                   ImGuiWindowFlags_NoBringToFrontOnFocus | ImGuiWindowFlags_NoScrollWithMouse);
+  // In review the last cine run loops at its frame rate; otherwise the live (or held) image.
+  if (review_ && !cine_.empty() && !cine_.back().frames.empty()) {
+    const CineRun& run = cine_.back();
+    const double now = now_us();
+    if (review_next_us_ == 0.0 || now >= review_next_us_) {
+      review_frame_ = (review_next_us_ == 0.0) ? 0 : (review_frame_ + 1) % run.frames.size();
+      tex_.upload(run.frames[review_frame_]);
+      review_next_us_ = now + 1e6 / kCineFps;
+    }
+  } else if (review_next_us_ != 0.0) {
+    review_next_us_ = 0.0;
+    if (have_image_) tex_.upload(image_);  // back to the held image
+  }
+  ImGui::Image(reinterpret_cast<ImTextureID>(static_cast<std::intptr_t>(tex_.id)),
+               ImVec2(side, side));
+  ImDrawList* dl = ImGui::GetWindowDrawList();
+  const ImU32 amber = IM_COL32(255, 200, 60, 255), white = IM_COL32(235, 235, 235, 255);
+  const float pad = 10.0f, line = ImGui::GetTextLineHeightWithSpacing();
+  dl->AddText(ImVec2(x + pad, y + pad),
+              white, angles_text(controls_.primary_deg(), controls_.secondary_deg()).c_str());
+  char buf[96];
+  std::snprintf(buf, sizeof buf, "FOV %.0f cm", controls_.fov() * 100.0);
+  dl->AddText(ImVec2(x + pad, y + pad + line), white, buf);
+  std::snprintf(buf, sizeof buf, "FL %s", clock_text(view_.fluoro_time).c_str());
+  const float w = ImGui::CalcTextSize(buf).x;
+  dl->AddText(ImVec2(x + side - w - pad, y + pad), amber, buf);
+  std::snprintf(buf, sizeof buf, "T %s", clock_text(view_.time).c_str());
+  dl->AddText(ImVec2(x + side - ImGui::CalcTextSize(buf).x - pad, y + pad + line), white, buf);
+  if (xray_now_) {
+    dl->AddCircleFilled(ImVec2(x + side - pad - 6, y + pad + 2.6f * line), 6.0f,
+                        IM_COL32(255, 190, 0, 255));
+    const char* what = controls_.cine_pedal() ? "CINE" : "FLUORO";
+    dl->AddText(ImVec2(x + side - pad - 18 - ImGui::CalcTextSize(what).x, y + pad + 2.1f * line),
+                amber, what);
+  } else if (review_) {
+    std::snprintf(buf, sizeof buf, "REVIEW %zu/%zu", review_frame_ + 1,
+                  cine_.empty() ? 0 : cine_.back().frames.size());
+    dl->AddText(ImVec2(x + pad, y + side - pad - line), amber, buf);
+  } else if (have_image_) {
+    dl->AddText(ImVec2(x + pad, y + side - pad - line), white, "LIH");
+  } else {
+    const char* t = "Hold SPACE for fluoroscopy";
+    const ImVec2 ts = ImGui::CalcTextSize(t);
+    dl->AddText(ImVec2(x + (side - ts.x) / 2, y + side / 2), IM_COL32(150, 150, 150, 255), t);
+  }
+  if (view_.paused) {
+    const char* t = "PAUSED";
+    dl->AddText(ImVec2(x + (side - ImGui::CalcTextSize(t).x) / 2, y + pad), amber, t);
+  }
+  if (controls_.injecting()) {
+    std::snprintf(buf, sizeof buf, "INJECT %.1f ml/s", controls_.inject_flow() / kMl);
+    dl->AddText(ImVec2(x + side - ImGui::CalcTextSize(buf).x - pad, y + side - pad - line), amber,
+                buf);
+  }
+  ImGui::End();
+  ImGui::PopStyleVar(2);
+}
+
+void Viewer::draw_side_panel(float x, float y, float w, float h) {
+  ImGui::SetNextWindowPos(ImVec2(x, y));
+  ImGui::SetNextWindowSize(ImVec2(w, h));
+  ImGui::Begin("Procedure", nullptr,
+               ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoCollapse);
+  const double wall = (now_us() - session_start_us_) * 1e-6;
+  ImGui::Text("Procedure time   %s", clock_text(view_.time).c_str());
+  ImGui::Text("Session (wall)   %s", clock_text(wall).c_str());
+  ImGui::Text("Fluoroscopy time %s", clock_text(view_.fluoro_time).c_str());
+  ImGui::Text("Cine runs        %zu (%zu frames)", cine_.size(), cine_total_);
+  ImGui::Text("Contrast used    %.1f ml", view_.contrast_volume / kMl);
+  ImGui::Text("Syringe          %.1f ml/s%s", view_.syringe_flow / kMl,
+              controls_.injecting() ? "  (injecting)" : "");
+  ImGui::Text("Physics lag      %.1f ms%s", view_.lag * 1e3, view_.paused ? "  PAUSED" : "");
+  ImGui::Separator();
+  ImGui::TextUnformatted("Instruments (Tab / 1-9 select; W/S push/pull, A/D turn)");
+  const int n = controls_.num_instruments();
+  for (int i = 0; i < n; ++i) {
+    const auto u = static_cast<std::size_t>(i);
+    char label[128];
+    std::snprintf(label, sizeof label, "%d %s%s", i + 1, controls_.name(i).c_str(),
+                  u < view_.device_driven.size() && view_.device_driven[u] ? " [device]" : "");
+    if (ImGui::RadioButton(label, controls_.selected() == i)) controls_.select(i, now_us());
+    const double depth = u < view_.depth.size() ? view_.depth[u] : 0.0;
+    const double roll = u < view_.roll.size() ? view_.roll[u] : 0.0;
+    const HandFeedback f = u < view_.feedback.size() ? view_.feedback[u] : HandFeedback{};
+    ImGui::Text("   %6.1f mm  %7.0f\xc2\xb0  %+5.2f N  %+5.2f N mm", depth * 1e3, roll / kDeg,
+                f.axial_force, f.torque * 1e3);
+    // The hand force as a bar: full at 2 N (a firm push).
+    char overlay[32];
+    std::snprintf(overlay, sizeof overlay, "%.2f N", f.axial_force);
+    const float frac = static_cast<float>(std::min(1.0, std::abs(f.axial_force) / 2.0));
+    ImGui::PushStyleColor(ImGuiCol_PlotHistogram, f.axial_force >= 0
+                                                      ? ImVec4(0.9f, 0.55f, 0.2f, 1.0f)
+                                                      : ImVec4(0.3f, 0.6f, 0.9f, 1.0f));
+    ImGui::ProgressBar(frac, ImVec2(-1, 0), overlay);
+    ImGui::PopStyleColor();
+  }
+  ImGui::Separator();
+  ImGui::TextUnformatted("C-arm (J/L RAO-LAO, I/K CAU-CRA, F1-F7 views)");
+  ImGui::Text("%s   FOV %.0f cm", angles_text(controls_.primary_deg(), controls_.secondary_deg()).c_str(),
+              controls_.fov() * 100.0);
+  ImGui::Text("Table pan  %+.0f mm L  %+.0f mm H (Ctrl+arrows)", controls_.table_pan().x() * 1e3,
+              controls_.table_pan().z() * 1e3);
+  for (std::size_t i = 0; i < kViewPresets.size(); ++i) {
+    char b[16];
+    std::snprintf(b, sizeof b, "F%zu", i + 1);
+    if (i > 0) ImGui::SameLine();
+    if (ImGui::SmallButton(b)) controls_.set_preset(static_cast<int>(i));
+    if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", kViewPresets[i].name);
+  }
+  ImGui::Separator();
+  float flow = static_cast<float>(controls_.inject_flow() / kMl);
+  if (ImGui::SliderFloat("Injection ml/s (hold E)", &flow, 0.5f, 6.0f, "%.1f"))
+    controls_.set_inject_flow(flow * kMl);
+  float atm = static_cast<float>(controls_.balloon_pressure() / kAtm);
+  if (ImGui::SliderFloat("Indeflator atm ([ ])", &atm, 0.0f, 20.0f, "%.1f"))
+    controls_.set_balloon(atm * kAtm, now_us());
+  if (o_.device) {
+    ImGui::Separator();
+    ImGui::Text("OpenIGTLink %s:%d  %s", o_.device_address.c_str(), o_.device->port(),
+                view_.device.connected ? "connected" : "waiting");
+    ImGui::Text("  %llu connections, %llu messages", static_cast<unsigned long long>(view_.device.connections),
+                static_cast<unsigned long long>(view_.device.messages_accepted));
+  }
+  const Scenario& sc = physics_.model().scenario;
+  if (!sc.landmarks.empty()) {
+    ImGui::Separator();
+    for (std::size_t k = 0; k < sc.landmarks.size(); ++k)
+      ImGui::Text("%s %s", k < view_.landmarks.size() && view_.landmarks[k] ? "[x]" : "[ ]",
+                  sc.landmarks[k].name.c_str());
+  }
+  if (!status_.empty() || !view_.message.empty()) {
+    ImGui::Separator();
+    ImGui::TextWrapped("%s", status_.empty() ? view_.message.c_str() : status_.c_str());
+  }
+  ImGui::End();
+}
+
+void Viewer::draw_menu() {
+  if (!ImGui::BeginMainMenuBar()) return;
+  if (ImGui::BeginMenu("Session")) {
+    if (ImGui::MenuItem(view_.paused ? "Resume" : "Pause", "P"))
+      physics_.request(Request::kTogglePause);
+    if (ImGui::MenuItem("Rewind 5 s", "B")) physics_.request(Request::kRewind, 5.0);
+    if (ImGui::MenuItem("Restart", "Ctrl+R")) physics_.request(Request::kRestart);
+    ImGui::Separator();
+    if (ImGui::MenuItem("Save cine runs as PNG", "Ctrl+S")) save_cine();
+    if (ImGui::MenuItem("Screenshot")) pending_shots_.push_back(out_path("screenshot.png"));
+    ImGui::Separator();
+    if (ImGui::MenuItem("End session (save)", "Esc")) glfwSetWindowShouldClose(win_, GLFW_TRUE);
+    ImGui::EndMenu();
+  }
+  if (ImGui::BeginMenu("View")) {
+    ImGui::MenuItem("Educator's 3D view", "G", &show3d_);
+    if (ImGui::MenuItem("Review last cine run", "V", review_)) do_action(Action::kToggleReview);
+    ImGui::MenuItem("Keys", "H", &help_);
+    ImGui::Separator();
+    for (std::size_t i = 0; i < kViewPresets.size(); ++i) {
+      char key[8];
+      std::snprintf(key, sizeof key, "F%zu", i + 1);
+      if (ImGui::MenuItem(kViewPresets[i].name, key)) controls_.set_preset(static_cast<int>(i));
+    }
+    ImGui::Separator();
+    for (std::size_t i = 0; i < kFieldSizesMm.size(); ++i) {
+      char name[32];
+      std::snprintf(name, sizeof name, "Field %.0f cm", kFieldSizesMm[i] / 10.0);
+      if (ImGui::MenuItem(name, nullptr, controls_.field() == static_cast<int>(i)))
+        controls_.set_field(static_cast<int>(i));
+    }
+    ImGui::EndMenu();
+  }
+  if (ImGui::BeginMenu("Instruments")) {
+    for (int i = 0; i < controls_.num_instruments(); ++i) {
+      char key[16];
+      std::snprintf(key, sizeof key, "%d", i + 1);
+      if (ImGui::MenuItem(controls_.name(i).c_str(), key, controls_.selected() == i))
+        controls_.select(i, now_us());
+    }
+    ImGui::Separator();
+    // Exchange: the slot's instrument must be out of the patient. The engine cannot swap an
+    // instrument's model during a run yet. ENGINE HOOK (issue 25, the complete PCI): once the
+    // simulator can replace instrument i's spec (Simulator/SimModel), send the request to the
+    // physics thread here (a Request::kExchange with the catalogue name), record it in the
+    // command recording's header so that `vcsim run --replay` rebuilds the same scene, and
+    // enable these items.
+    if (ImGui::BeginMenu("Exchange selected for")) {
+      const int sel = controls_.selected();
+      const auto su = static_cast<std::size_t>(sel);
+      const bool out = su < view_.depth.size() && view_.depth[su] <= 1e-3;
+      const InstrumentKind kind = physics_.model().specs[su].kind;
+      for (const InstrumentSpec& spec : catalogue_.items) {
+        const bool fits = spec.kind == kind ||
+                          (kind == InstrumentKind::kGuidewire) == (spec.kind == InstrumentKind::kGuidewire);
+        if (!fits) continue;
+        if (ImGui::MenuItem(spec.name.c_str(), nullptr, false, true))
+          status_ = out ? "exchange for " + spec.name +
+                              ": waits for the engine's instrument swap (issue 25)"
+                        : "pull " + controls_.name(sel) + " out of the patient first";
+        if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", spec.description.c_str());
+      }
+      ImGui::EndMenu();
+    }
+    ImGui::EndMenu();
+  }
+  if (ImGui::BeginMenu("Balloon & stent")) {
+    // The indeflator's pressure and the deploy button reach the engine as StepCommands
+    // (balloon_pressure in Pa, buttons bit 2) and are recorded. ENGINE HOOK (issue 25): the
+    // procedure layer's balloon and stent read them in sim_step; nothing here changes then.
+    for (double a : {0.0, 4.0, 8.0, 12.0, 16.0}) {
+      char name[32];
+      std::snprintf(name, sizeof name, "Indeflator %.0f atm", a);
+      if (ImGui::MenuItem(name, nullptr, std::abs(controls_.balloon_pressure() / kAtm - a) < 0.05))
+        controls_.set_balloon(a * kAtm, now_us());
+    }
+    ImGui::Separator();
+    if (ImGui::MenuItem("Deploy stent (hold Enter)")) {
+      controls_.set_deploy(true, now_us());
+      deploy_until_us_ = now_us() + 5e5;
+      status_ = "stent deployment sent (the engine's stent arrives with issue 25)";
+    }
+    ImGui::EndMenu();
+  }
+  char buf[128];
+  std::snprintf(buf, sizeof buf, "   %s   %s   FL %s", o_.scenario.name.c_str(),
+                clock_text(view_.time).c_str(), clock_text(view_.fluoro_time).c_str());
+  ImGui::TextUnformatted(buf);
+  ImGui::EndMainMenuBar();
+}
+
+void Viewer::draw_ui() {
+  int fw = 0, fh = 0;
+  glfwGetWindowSize(win_, &fw, &fh);
+  draw_menu();
+  const float top = ImGui::GetFrameHeight();
+  const float side_w = std::min(380.0f, std::max(260.0f, 0.34f * static_cast<float>(fw)));
+  const float avail_h = static_cast<float>(fh) - top;
+  const float side = std::max(64.0f, std::min(avail_h, static_cast<float>(fw) - side_w));
+  draw_fluoro_panel(0.0f, top, side);
+  draw_side_panel(side, top, static_cast<float>(fw) - side, avail_h);
+  if (show3d_) {
+    if (!view3d_) view3d_ = std::make_unique<View3D>(physics_.model(), 384);
+    view3d_->draw(view_.frame, controls_.selected());
+    const float s = std::min(300.0f, 0.45f * side);
+    ImGui::SetNextWindowPos(ImVec2(side - s - 8.0f, top + side - s - 30.0f), ImGuiCond_Appearing);
+    ImGui::Begin("Educator's 3D view (drag: turn, wheel: zoom)", &show3d_,
+                 ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoScrollWithMouse);
+    const ImVec2 p = ImGui::GetCursorScreenPos();
+    ImGui::Image(reinterpret_cast<ImTextureID>(static_cast<std::intptr_t>(view3d_->texture())),
+                 ImVec2(s, s), ImVec2(0, 1), ImVec2(1, 0));
+    view3d_rect_[0] = p.x;
+    view3d_rect_[1] = p.y;
+    view3d_rect_[2] = p.x + s;
+    view3d_rect_[3] = p.y + s;
+    ImGui::End();
+  }
+  if (help_) {
+    ImGui::SetNextWindowPos(ImVec2(20, top + 60), ImGuiCond_Appearing);
+    ImGui::Begin("Keys", &help_, ImGuiWindowFlags_AlwaysAutoResize);
+    ImGui::TextUnformatted(
+        "W / S or Up / Down   push / pull the selected instrument (faster the longer held;\n"
+        "                     Shift: fine)\n"
+        "A / D or Left/Right  turn it\n"
+        "Mouse drag on image  push/pull (up/down) and turn (left/right)\n"
+        "Tab, 1-9             select the instrument\n"
+        "Space (hold)         fluoroscopy pedal (last image hold when released)\n"
+        "C (hold)             cine pedal: records a run at 15 fps;  V review;  Ctrl+S save PNGs\n"
+        "E (hold)             inject contrast at the set flow\n"
+        "J / L, I / K         C-arm RAO / LAO, CAU / CRA;  F1-F7 standard views\n"
+        "+ / - (or wheel)     field size;  Ctrl + arrows  table pan\n"
+        "[ / ]  \\            indeflator -1 / +1 atm, deflate;  Enter (hold) deploy stent\n"
+        "P pause, B rewind 5 s, Ctrl+R restart, G 3D view, H keys, Esc end and save\n"
+        "Gamepad: left stick drive, right stick C-arm, A fluoro, B inject, X cine,\n"
+        "         LB/RB select, triggers field size, d-pad table, Back pause, Start rewind");
+    ImGui::End();
+  }
+}
+
+nlohmann::json Viewer::overlay_json() const {
+  nlohmann::json j;
+  j["procedure_time_s"] = view_.time;
+  j["fluoroscopy_time_s"] = view_.fluoro_time;
+  j["contrast_used_ml"] = view_.contrast_volume / kMl;
+  j["syringe_flow_ml_s"] = view_.syringe_flow / kMl;
+  j["primary_deg"] = controls_.primary_deg();
+  j["secondary_deg"] = controls_.secondary_deg();
+  j["angles"] = angles_text(controls_.primary_deg(), controls_.secondary_deg());
+  j["field_mm"] = controls_.fov() * 1e3;
+  j["fluoro_pedal"] = controls_.fluoro_pedal();
+  j["xray_on"] = xray_now_;
+  j["image_held"] = have_image_ && !xray_now_;
+  j["paused"] = view_.paused;
+  j["selected"] = controls_.name(controls_.selected());
+  j["cine_runs"] = cine_.size();
+  j["steps"] = view_.steps;
+  nlohmann::json inst = nlohmann::json::array();
+  for (int i = 0; i < controls_.num_instruments(); ++i) {
+    const auto u = static_cast<std::size_t>(i);
+    inst.push_back({{"name", controls_.name(i)},
+                    {"depth_mm", u < view_.depth.size() ? view_.depth[u] * 1e3 : 0.0},
+                    {"force_n", u < view_.feedback.size() ? view_.feedback[u].axial_force : 0.0}});
+  }
+  j["instruments"] = inst;
+  j["fluoro_panel"] = {fluoro_x_, fluoro_y_, fluoro_side_};
+  return j;
+}
+
+void Viewer::take_screenshot(const fs::path& file) {
+  int w = 0, h = 0;
+  glfwGetFramebufferSize(win_, &w, &h);
+  std::vector<std::uint8_t> px(static_cast<std::size_t>(w) * h * 3), flipped(px.size());
+  glPixelStorei(GL_PACK_ALIGNMENT, 1);
+  glReadBuffer(GL_BACK);
+  glReadPixels(0, 0, w, h, GL_RGB, GL_UNSIGNED_BYTE, px.data());
+  const std::size_t row = static_cast<std::size_t>(w) * 3;
+  for (int y = 0; y < h; ++y)
+    std::copy_n(px.data() + static_cast<std::size_t>(h - 1 - y) * row, row,
+                flipped.data() + static_cast<std::size_t>(y) * row);
+  std::error_code ec;
+  if (file.has_parent_path()) fs::create_directories(file.parent_path(), ec);
+  if (!stbi_write_png(file.string().c_str(), w, h, 3, flipped.data(), static_cast<int>(row))) {
+    status_ = "could not write " + file.string();
+    return;
+  }
+  // The overlay's values beside the picture: what the overlay drew in this frame.
+  nlohmann::json j = overlay_json();
+  j["width"] = w;
+  j["height"] = h;
+  fs::path side = file;
+  side.replace_extension(".json");
+  std::ofstream(side) << j.dump(2) << "\n";
+  shots_taken_.push_back(file.string());
+}
+
+void Viewer::save_cine() {
+  if (!o_.write_outputs) return;
+  int saved = 0;
+  for (std::size_t r = 0; r < cine_.size(); ++r) {
+    CineRun& run = cine_[r];
+    if (run.saved || run.frames.empty()) continue;
+    char name[32];
+    std::snprintf(name, sizeof name, "cine/run_%02zu", r + 1);
+    run.dir = o_.out / name;
+    std::error_code ec;
+    fs::create_directories(run.dir, ec);
+    for (std::size_t k = 0; k < run.frames.size(); ++k) {
+      char f[32];
+      std::snprintf(f, sizeof f, "frame_%05zu.png", k);
+      write_png_grey((run.dir / f).string(), run.frames[k], o_.fluoro_size, o_.fluoro_size);
+    }
+    run.saved = true;
+    ++saved;
+  }
+  status_ = saved ? "cine saved in " + (o_.out / "cine").string() : "no new cine run to save";
+}
+
+void Viewer::frame() {
+  glfwPollEvents();
+  const double now = now_us();
+  if (!script_.empty()) run_script(now);
+  if (!scripted_pad_) {
+    bool found = false;
+    for (int j = GLFW_JOYSTICK_1; j <= GLFW_JOYSTICK_LAST && !found; ++j) {
+      GLFWgamepadstate st;
+      if (glfwJoystickIsGamepad(j) && glfwGetGamepadState(j, &st)) {
+        GamepadState g;
+        std::copy(std::begin(st.axes), std::end(st.axes), g.axes.begin());
+        std::copy(std::begin(st.buttons), std::end(st.buttons), g.buttons.begin());
+        controls_.gamepad(g, now);
+        found = true;
+      }
+    }
+    if (!found) controls_.gamepad_lost(now);
+  }
+  if (controls_.update(now_us())) physics_.set_operator(controls_.commands());
+  do_actions();
+  physics_.latest(view_);
+  // An event just handed over: wait a moment (at most 3 ms, a few physics steps) for the state
+  // that used it, so that this frame shows it rather than the next.
+  if (!view_.paused && !controls_.changes().empty() &&
+      controls_.changes().back().seq > view_.input_seq) {
+    const double until = now_us() + 3000.0;
+    while (now_us() < until) {
+      std::this_thread::sleep_for(std::chrono::microseconds(200));
+      physics_.latest(view_);
+      if (view_.input_seq >= controls_.changes().back().seq) break;
+    }
+  }
+  render_xray();
+
+  ImGui_ImplOpenGL3_NewFrame();
+  ImGui_ImplGlfw_NewFrame();
+  ImGui::NewFrame();
+  draw_ui();
+  ImGui::Render();
+  int fw = 0, fh = 0;
+  glfwGetFramebufferSize(win_, &fw, &fh);
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
+  glViewport(0, 0, fw, fh);
+  glClearColor(0.05f, 0.05f, 0.06f, 1.0f);
+  glClear(GL_COLOR_BUFFER_BIT);
+  ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+  for (const fs::path& f : pending_shots_) take_screenshot(f);
+  pending_shots_.clear();
+  glfwSwapBuffers(win_);
+  const double swapped = now_us();
+  frame_us_.push_back(swapped);
+  // Latency: every input change the state of this frame used, from its event to this swap.
+  auto& ch = controls_.changes();
+  if (view_.paused) ch.clear();
+  while (!ch.empty() && ch.front().seq <= view_.input_seq) {
+    latency_ms_.push_back((swapped - ch.front().event_us) * 1e-3);
+    ch.pop_front();
+  }
+  // No faster than 60 frames per second: the physics shares the machine.
+  const double spent = now_us() - now;
+  if (spent < 16000.0)
+    std::this_thread::sleep_for(std::chrono::microseconds(static_cast<long>(16000.0 - spent)));
+}
+
+int Viewer::run(double started_us) {
+  session_start_us_ = now_us();
+  setup_s_ = (session_start_us_ - started_us) * 1e-6;
+  physics_.start();
+  t0_us_ = now_us();
+  while (!glfwWindowShouldClose(win_) && !(o_.stop && o_.stop->load(std::memory_order_relaxed)))
+    frame();
+  finish();
+  return 0;
+}
+
+void Viewer::finish() {
+  physics_.stop();
+  const Simulator& sim = physics_.simulator();
+  CommandRecording& rec = physics_.recording();
+  rec.state_hash = sim.state().hash();
+  rec.scenario_file = o_.scenario_file;
+  const double wall = (now_us() - session_start_us_) * 1e-6;
+
+  // Frame rate over the session after its first second (window start-up, shader compiles).
+  double fps = 0.0;
+  {
+    std::size_t first = 0;
+    while (first < frame_us_.size() && frame_us_[first] - frame_us_.front() < 1e6) ++first;
+    if (frame_us_.size() > first + 1)
+      fps = static_cast<double>(frame_us_.size() - 1 - first) /
+            ((frame_us_.back() - frame_us_[first]) * 1e-6);
+  }
+  std::vector<double> lags;
+  for (float l : physics_.lag_samples()) lags.push_back(static_cast<double>(l) * 1e3);
+  const double lag_med = median(lags);
+  const double lag_max = lags.empty() ? 0.0 : *std::max_element(lags.begin(), lags.end());
+  const double lat_med = median(latency_ms_);
+  const double lat_max =
+      latency_ms_.empty() ? 0.0 : *std::max_element(latency_ms_.begin(), latency_ms_.end());
+  const char* renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+
+  nlohmann::json perf = {
+      {"fps", fps},
+      {"frames", frame_us_.size()},
+      {"xray_frames", xray_frames_},
+      {"fluoro_size", o_.fluoro_size},
+      {"lag_ms", {{"median", lag_med}, {"max", lag_max}, {"steps", lags.size()}}},
+      {"latency_ms", {{"median", lat_med}, {"max", lat_max}, {"events", latency_ms_.size()}}},
+      {"render_ms_per_xray_frame", xray_frames_ > 0 ? render_s_ * 1e3 / static_cast<double>(xray_frames_) : 0.0},
+      {"sim_time_s", sim.time()},
+      {"wall_time_s", wall},
+      {"late_steps", physics_.loop_stats().late_steps},
+      {"resyncs", physics_.loop_stats().resyncs},
+      {"gl_renderer", renderer ? renderer : ""}};
+  int w = 0, h = 0;
+  glfwGetFramebufferSize(win_, &w, &h);
+  perf["window"] = {w, h};
+
+  if (o_.write_outputs) {
+    std::error_code ec;
+    fs::create_directories(o_.out, ec);
+    save_cine();
+    const fs::path rec_file = o_.out / "recording.json";
+    rec.save(rec_file);
+    RunReport report;
+    report.scenario_file = o_.scenario_file;
+    report.end_time = sim.time();
+    report.wall_time = wall;
+    report.setup_time = setup_s_;
+    report.render_time = render_s_;
+    report.frames = static_cast<int>(xray_frames_);
+    report.fluoroscopy_time = physics_.fluoro_time();
+    report.input_type = "trainer";
+    report.realtime = true;
+    report.loop = physics_.loop_stats();
+    report.loop.stopped = o_.stop && o_.stop->load();
+    if (o_.device) {
+      report.device = o_.device->stats();
+      report.device_address = o_.device_address;
+      report.device_port = o_.device->port();
+    }
+    const fs::path metrics = o_.out / "metrics.json";
+    write_run_metrics(metrics, sim, report);
+    // The trainer's own figures beside the run's (the assessment reads both).
+    nlohmann::json j;
+    {
+      std::ifstream in(metrics);
+      j = nlohmann::json::parse(in);
+    }
+    nlohmann::json t = perf;
+    t["recording"] = rec_file.string();
+    t["recorded_steps"] = rec.steps();
+    t["recorded_runs"] = rec.num_runs();
+    t["cine_runs"] = cine_.size();
+    t["cine_frames"] = cine_total_;
+    t["rewinds"] = physics_.rewinds();
+    t["restarts"] = physics_.restarts();
+    t["screenshots"] = shots_taken_;
+    if (o_.device) {
+      const IgtlStats st = o_.device->stats();
+      t["device"] = {{"connections", st.connections},
+                     {"disconnections", st.disconnections},
+                     {"messages_accepted", st.messages_accepted}};
+    }
+    j["trainer"] = t;
+    std::ofstream(metrics) << j.dump(2) << "\n";
+    std::cerr << "trainer: session saved: " << rec_file.string() << " (" << rec.steps()
+              << " steps, " << rec.num_runs() << " runs), " << metrics.string() << "\n"
+              << "trainer: replay it with: vcsim run " << o_.scenario_file << " --replay "
+              << rec_file.string() << "\n";
+  }
+  if (o_.bench) std::cout << perf.dump(2) << std::endl;
+}
+
+}  // namespace
+
+int run_trainer(TrainerOptions o) {
+  // A machine without a display: say how to run it anyway, before anything else is built.
+  const char* display = std::getenv("DISPLAY");
+  const char* wayland = std::getenv("WAYLAND_DISPLAY");
+  if ((!display || !*display) && (!wayland || !*wayland))
+    throw InputError("trainer", "display",
+                     "expected a display (DISPLAY is not set); on a machine without one run it "
+                     "under a virtual X server: xvfb-run -a vcsim trainer");
+  glfwSetErrorCallback(on_glfw_error);
+  if (!glfwInit())
+    throw InputError("trainer", "display",
+                     "expected a display GLFW can open (" + g_glfw_error +
+                         "); on a machine without one run it under xvfb-run -a vcsim trainer");
+  struct GlfwEnd {
+    ~GlfwEnd() { glfwTerminate(); }
+  } glfw_end;
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
+  glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
+  glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
+  const std::string title = "vcsim trainer: " + o.scenario.name;
+  GLFWwindow* win = glfwCreateWindow(o.width, o.height, title.c_str(), nullptr, nullptr);
+  if (!win)
+    throw std::runtime_error("trainer: no OpenGL 3.3 core window (" + g_glfw_error + ")");
+  struct WindowEnd {
+    GLFWwindow* w;
+    ~WindowEnd() { glfwDestroyWindow(w); }
+  } window_end{win};
+  glfwMakeContextCurrent(win);
+  glfwSwapInterval(0);  // paced by the frame loop (at most 60 per second), not by the display
+  // Our callbacks first: ImGui's backend chains to them.
+  glfwSetKeyCallback(win, key_cb);
+  glfwSetMouseButtonCallback(win, mouse_cb);
+  glfwSetCursorPosCallback(win, cursor_cb);
+  glfwSetScrollCallback(win, scroll_cb);
+
+  IMGUI_CHECKVERSION();
+  ImGui::CreateContext();
+  ImGui::GetIO().IniFilename = nullptr;  // no imgui.ini left in the working folder
+  ImGui::StyleColorsDark();
+  ImGui_ImplGlfw_InitForOpenGL(win, true);
+  ImGui_ImplOpenGL3_Init("#version 330 core");
+  struct ImGuiEnd {
+    ~ImGuiEnd() {
+      ImGui_ImplOpenGL3_Shutdown();
+      ImGui_ImplGlfw_Shutdown();
+      ImGui::DestroyContext();
+    }
+  } imgui_end;
+
+  const double t0 = now_us();
+  int status = 0;
+  {
+    Viewer viewer(o, win);
+    std::cerr << "trainer: " << o.scenario.name << " ready in " << (now_us() - t0) * 1e-6
+              << " s (" << reinterpret_cast<const char*>(glGetString(GL_RENDERER)) << ")"
+              << std::endl;
+    status = viewer.run(t0);
+  }
+  return status;
+}
+
+}  // namespace vcsim::trainer
