@@ -153,7 +153,7 @@ View3D::View3D(const SimModel& model, int size)
     for (int k = 0; k < 3; ++k) idx.push_back(static_cast<unsigned>(t[k]));
   lumen_count_ = static_cast<int>(idx.size());
   upload(lumen_vao_, lumen_vbo_, lumen_nbo_, lumen_ebo_, pos_, nrm_, &idx);
-  centre_ = left_coronary_centre(model.tree);
+  home_ = centre_ = left_coronary_centre(model.tree);
 }
 
 View3D::~View3D() {
@@ -187,8 +187,15 @@ void View3D::draw(const FrameSnapshot& frame, int selected) {
     glBufferSubData(GL_ARRAY_BUFFER, 0, static_cast<GLsizeiptr>(pos_.size() * sizeof(float)),
                     pos_.data());
   }
-  // The camera orbits the heart; LPS: +z toward the head, -y anterior (the educator stands at
-  // the patient's front).
+  // The camera orbits the selected instrument's tip while it is inside (else the heart), gliding
+  // there over a few frames; LPS: +z toward the head, -y anterior (the educator stands at the
+  // patient's front).
+  const Vec3 target =
+      selected >= 0 && static_cast<std::size_t>(selected) < frame.nodes.size() &&
+              frame.nodes[static_cast<std::size_t>(selected)].size() >= 2
+          ? frame.nodes[static_cast<std::size_t>(selected)].back()
+          : home_;
+  centre_ += 0.15 * (target - centre_);
   const Vec3 dir(std::cos(pitch_) * std::sin(yaw_), -std::cos(pitch_) * std::cos(yaw_),
                  std::sin(pitch_));
   const Vec3 eye = centre_ + distance_ * dir;
@@ -218,7 +225,8 @@ void View3D::draw(const FrameSnapshot& frame, int selected) {
   for (std::size_t i = 0; i < frame.nodes.size(); ++i) {
     const std::vector<Vec3>& nodes = frame.nodes[i];
     if (nodes.size() < 2) continue;
-    const double r = std::max(0.6e-3, 0.5 * model_.specs[i].outer_diameter);
+    // Thicker than life (at least 2 mm across) so that a wire shows at the view's scale.
+    const double r = std::max(1.0e-3, 0.5 * model_.specs[i].outer_diameter);
     const std::vector<double> radii = {r};
     const TriangleMesh tube = tube_mesh(nodes, radii, 6);
     const auto base = static_cast<unsigned>(p.size() / 3);

@@ -1,6 +1,6 @@
 // The educator's 3D view: the lumen (moved with the heart) as a translucent surface and the
-// instruments as coloured tubes, seen by an orbiting camera, drawn into a texture the window
-// shows. Needs the window's GL 3.3 core context for its whole life.
+// instruments as coloured tubes, seen by a camera orbiting the selected instrument's tip, drawn
+// into a texture the window shows. Needs the window's GL 3.3 core context for its whole life.
 #pragma once
 
 #include <cstdint>
@@ -36,8 +36,8 @@ class View3D {
   int u_mvp_ = -1, u_color_ = -1, u_light_ = -1;
   std::vector<Vec3> rest_;
   std::vector<float> pos_, nrm_;
-  Vec3 centre_ = Vec3::Zero();
-  double yaw_ = 0.6, pitch_ = 0.25, distance_ = 0.45;  // rad, rad, m
+  Vec3 home_ = Vec3::Zero(), centre_ = Vec3::Zero();  // the heart; what the camera looks at
+  double yaw_ = 0.6, pitch_ = 0.25, distance_ = 0.25;  // rad, rad, m
 };
 
 }  // namespace vcsim::trainer
