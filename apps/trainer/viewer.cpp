@@ -57,9 +57,10 @@ std::string clock_text(double s) {
   return buf;
 }
 
-double median(std::vector<double> v) {
+// The q-quantile (0.5: the median) of the values, 0 for none.
+double quantile(std::vector<double> v, double q) {
   if (v.empty()) return 0.0;
-  const std::size_t k = v.size() / 2;
+  const auto k = static_cast<std::size_t>(q * static_cast<double>(v.size() - 1) + 0.5);
   std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
   return v[k];
 }
@@ -103,10 +104,12 @@ class Viewer {
   ~Viewer();
   int run(double started_us);
 
-  // The GLFW callbacks land here (and the script calls the same).
-  void on_key(int key, int action, int mods);
-  void on_mouse_button(int button, int action, int mods);
-  void on_cursor(double x, double y);
+  // The GLFW callbacks land here (and the script calls the same). `when_us`: when the event
+  // happened (the wall clock, now_us()); a callback passes the time it is called, the script the
+  // time an event was due (it waits for the next frame as a key press waits in the X queue).
+  void on_key(int key, int action, int mods, double when_us);
+  void on_mouse_button(int button, int action, int mods, double when_us);
+  void on_cursor(double x, double y, double when_us);
   void on_scroll(double dx, double dy);
 
  private:
@@ -177,13 +180,13 @@ class Viewer {
 Viewer* g_viewer = nullptr;
 
 void key_cb(GLFWwindow*, int key, int, int action, int mods) {
-  if (g_viewer) g_viewer->on_key(key, action, mods);
+  if (g_viewer) g_viewer->on_key(key, action, mods, now_us());
 }
 void mouse_cb(GLFWwindow*, int button, int action, int mods) {
-  if (g_viewer) g_viewer->on_mouse_button(button, action, mods);
+  if (g_viewer) g_viewer->on_mouse_button(button, action, mods, now_us());
 }
 void cursor_cb(GLFWwindow*, double x, double y) {
-  if (g_viewer) g_viewer->on_cursor(x, y);
+  if (g_viewer) g_viewer->on_cursor(x, y, now_us());
 }
 void scroll_cb(GLFWwindow*, double dx, double dy) {
   if (g_viewer) g_viewer->on_scroll(dx, dy);
@@ -223,12 +226,12 @@ Viewer::~Viewer() {
   g_viewer = nullptr;
 }
 
-void Viewer::on_key(int key, int action, int mods) {
+void Viewer::on_key(int key, int action, int mods, double when_us) {
   if (ImGui::GetCurrentContext() && ImGui::GetIO().WantTextInput) return;
-  controls_.key(key, action, mods, now_us());
+  controls_.key(key, action, mods, when_us);
 }
 
-void Viewer::on_mouse_button(int button, int action, int mods) {
+void Viewer::on_mouse_button(int button, int action, int mods, double when_us) {
   double x = 0, y = 0;
   glfwGetCursorPos(win_, &x, &y);
   if (button == GLFW_MOUSE_BUTTON_RIGHT || button == GLFW_MOUSE_BUTTON_LEFT) {
@@ -242,17 +245,17 @@ void Viewer::on_mouse_button(int button, int action, int mods) {
     }
     if (action == GLFW_RELEASE) orbiting_ = false;
   }
-  controls_.mouse_button(button, action, mods, x, y, now_us());
+  controls_.mouse_button(button, action, mods, x, y, when_us);
 }
 
-void Viewer::on_cursor(double x, double y) {
+void Viewer::on_cursor(double x, double y, double when_us) {
   if (orbiting_ && view3d_) {
     view3d_->orbit(x - last_cursor_[0], y - last_cursor_[1]);
     last_cursor_[0] = x;
     last_cursor_[1] = y;
     return;
   }
-  controls_.cursor(x, y, now_us());
+  controls_.cursor(x, y, when_us);
 }
 
 void Viewer::on_scroll(double dx, double dy) {
@@ -272,24 +275,25 @@ void Viewer::run_script(double now) {
   const double t = (now - t0_us_) * 1e-6;
   while (next_event_ < script_.size() && script_[next_event_].t <= t) {
     const ScriptEvent& e = script_[next_event_++];
+    const double due = t0_us_ + e.t * 1e6;
     switch (e.type) {
       case ScriptEvent::Type::kKey:
-        on_key(e.key, e.action, e.mods);
+        on_key(e.key, e.action, e.mods, due);
         break;
       case ScriptEvent::Type::kMouse:
         glfwSetCursorPos(win_, e.x, e.y);
-        on_mouse_button(e.key, e.action, e.mods);
+        on_mouse_button(e.key, e.action, e.mods, due);
         break;
       case ScriptEvent::Type::kCursor:
-        on_cursor(e.x, e.y);
+        on_cursor(e.x, e.y, due);
         break;
       case ScriptEvent::Type::kGamepad:
         scripted_pad_ = true;
-        controls_.gamepad(e.pad, now_us());
+        controls_.gamepad(e.pad, due);
         break;
       case ScriptEvent::Type::kGamepadLost:
         scripted_pad_ = true;
-        controls_.gamepad_lost(now_us());
+        controls_.gamepad_lost(due);
         break;
       case ScriptEvent::Type::kScreenshot:
         pending_shots_.push_back(out_path(e.file));
@@ -843,9 +847,9 @@ void Viewer::finish() {
   }
   std::vector<double> lags;
   for (float l : physics_.lag_samples()) lags.push_back(static_cast<double>(l) * 1e3);
-  const double lag_med = median(lags);
+  const double lag_med = quantile(lags, 0.5), lag_p99 = quantile(lags, 0.99);
   const double lag_max = lags.empty() ? 0.0 : *std::max_element(lags.begin(), lags.end());
-  const double lat_med = median(latency_ms_);
+  const double lat_med = quantile(latency_ms_, 0.5), lat_p90 = quantile(latency_ms_, 0.9);
   const double lat_max =
       latency_ms_.empty() ? 0.0 : *std::max_element(latency_ms_.begin(), latency_ms_.end());
   const char* renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
@@ -855,8 +859,9 @@ void Viewer::finish() {
       {"frames", frame_us_.size()},
       {"xray_frames", xray_frames_},
       {"fluoro_size", o_.fluoro_size},
-      {"lag_ms", {{"median", lag_med}, {"max", lag_max}, {"steps", lags.size()}}},
-      {"latency_ms", {{"median", lat_med}, {"max", lat_max}, {"events", latency_ms_.size()}}},
+      {"lag_ms", {{"median", lag_med}, {"p99", lag_p99}, {"max", lag_max}, {"steps", lags.size()}}},
+      {"latency_ms",
+       {{"median", lat_med}, {"p90", lat_p90}, {"max", lat_max}, {"events", latency_ms_.size()}}},
       {"render_ms_per_xray_frame", xray_frames_ > 0 ? render_s_ * 1e3 / static_cast<double>(xray_frames_) : 0.0},
       {"sim_time_s", sim.time()},
       {"wall_time_s", wall},
