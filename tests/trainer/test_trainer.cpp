@@ -35,7 +35,12 @@ using trainer::Controls;
 const bool kIgnoreSigpipe = (std::signal(SIGPIPE, SIG_IGN), true);
 
 fs::path scratch(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / ("vcsim_trainer_" + name);
+  // Per process: a release and a sanitizer run, or two checkouts, may run at once.
+  std::string dir = "vcsim_trainer_";
+  dir += std::to_string(::getpid());
+  dir += "_";
+  dir += name;
+  const fs::path d = fs::temp_directory_path() / dir;
   fs::remove_all(d);
   fs::create_directories(d);
   return d;
@@ -348,6 +353,12 @@ TEST(TrainerApp, ADeviceConnectsDropsAndReconnectsBesideTheKeyboard) {
   ASSERT_TRUE(p.started());
   const int port = wait_for_port(p, d / "err.txt");
   ASSERT_GT(port, 0) << slurp(d / "err.txt");
+  // The server listens before the window opens; the physics starts once it is ready (a slow
+  // machine takes a while): commands sent before would be overtaken by the disconnect's.
+  const auto ready_by = std::chrono::steady_clock::now() + 120s;
+  while (slurp(d / "err.txt").find(" ready in ") == std::string::npos && !p.exited() &&
+         std::chrono::steady_clock::now() < ready_by)
+    std::this_thread::sleep_for(20ms);
   {
     IgtlClient c;
     ASSERT_TRUE(c.connect(port, 10000ms));
