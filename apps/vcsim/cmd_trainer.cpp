@@ -4,6 +4,7 @@
 // a command recording (`vcsim run SCENARIO --replay DIR/recording.json` replays it to the same
 // state) with its metrics. `--bench` runs the default scene with scripted input and prints the
 // frame rate, the physics lag and the input-to-frame latency as JSON. This file is options only.
+#include <csignal>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -64,6 +65,9 @@ int cmd_trainer(const TrainerCliOptions& c) {
     std::cerr << "trainer: OpenIGTLink server listening on " << c.address << ":"
               << o.device->port() << std::endl;  // flushed: a client waits on it
   o.scenario = std::move(sc);
+  // A closed pipe on stdout or stderr (a terminal gone, `| head`) must not kill the session
+  // before it is saved: a write fails instead.
+  std::signal(SIGPIPE, SIG_IGN);
   const StopOnSignal stop;
   o.stop = &stop.flag();
   return trainer::run_trainer(std::move(o));
