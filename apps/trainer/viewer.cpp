@@ -691,6 +691,8 @@ nlohmann::json Viewer::overlay_json() const {
   j["paused"] = view_.paused;
   j["selected"] = controls_.name(controls_.selected());
   j["cine_runs"] = cine_.size();
+  j["cine_frames"] = cine_total_;
+  j["review"] = review_;
   j["steps"] = view_.steps;
   nlohmann::json inst = nlohmann::json::array();
   for (int i = 0; i < controls_.num_instruments(); ++i) {

@@ -278,26 +278,44 @@ TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameSta
   EXPECT_EQ(replay_hash(d), m["state_hash"].get<std::string>());
 }
 
-TEST(TrainerApp, ResizeRewindAndTheEducatorsViewKeepTheSessionReplayable) {
+TEST(TrainerApp, CinePauseResizeRewindAndTheEducatorsViewKeepTheSessionReplayable) {
   const fs::path d = scratch("resize");
   std::ofstream(d / "s.json") << R"({"events": [
-    {"t_s": 0.2, "key": "SPACE", "action": "press"},
-    {"t_s": 0.3, "key": "W", "action": "press"},
-    {"t_s": 1.5, "key": "W", "action": "release"},
-    {"t_s": 1.6, "resize": [900, 600]},
-    {"t_s": 1.7, "key": "G", "action": "press"},
-    {"t_s": 1.8, "key": "G", "action": "release"},
-    {"t_s": 2.3, "screenshot": "small.png"},
-    {"t_s": 2.4, "key": "B", "action": "press"},
-    {"t_s": 2.5, "key": "B", "action": "release"},
-    {"t_s": 2.6, "key": "S", "action": "press"},
-    {"t_s": 3.0, "key": "S", "action": "release"},
-    {"t_s": 3.1, "resize": [1400, 900]},
-    {"t_s": 3.6, "screenshot": "large.png"},
-    {"t_s": 3.7, "close": true}]})";
+    {"t_s": 0.2, "key": "C", "action": "press"},
+    {"t_s": 1.0, "key": "C", "action": "release"},
+    {"t_s": 1.1, "key": "V", "action": "press"},
+    {"t_s": 1.15, "key": "V", "action": "release"},
+    {"t_s": 1.3, "screenshot": "review.png"},
+    {"t_s": 1.35, "key": "P", "action": "press"},
+    {"t_s": 1.4, "key": "P", "action": "release"},
+    {"t_s": 1.6, "screenshot": "paused.png"},
+    {"t_s": 1.7, "key": "P", "action": "press"},
+    {"t_s": 1.75, "key": "P", "action": "release"},
+    {"t_s": 1.8, "key": "SPACE", "action": "press"},
+    {"t_s": 1.9, "key": "W", "action": "press"},
+    {"t_s": 3.0, "key": "W", "action": "release"},
+    {"t_s": 3.1, "resize": [900, 600]},
+    {"t_s": 3.2, "key": "G", "action": "press"},
+    {"t_s": 3.25, "key": "G", "action": "release"},
+    {"t_s": 3.7, "screenshot": "small.png"},
+    {"t_s": 3.8, "key": "B", "action": "press"},
+    {"t_s": 3.85, "key": "B", "action": "release"},
+    {"t_s": 4.0, "key": "S", "action": "press"},
+    {"t_s": 4.4, "key": "S", "action": "release"},
+    {"t_s": 4.5, "key": "S", "action": "press", "mods": ["ctrl"]},
+    {"t_s": 4.55, "key": "S", "action": "release", "mods": ["ctrl"]},
+    {"t_s": 4.6, "resize": [1400, 900]},
+    {"t_s": 5.1, "screenshot": "large.png"},
+    {"t_s": 5.2, "close": true}]})";
   const CliResult r = run_cli("trainer --script " + (d / "s.json").string() + " --out " +
                               d.string() + " --width 1024 --height 700");
   ASSERT_EQ(r.status, 0) << r.err;
+  // A cine run recorded while C was held, reviewed in the window, saved as PNGs.
+  const nlohmann::json review = read_json(d / "review.json");
+  EXPECT_TRUE(review["review"].get<bool>());
+  EXPECT_GE(review["cine_frames"].get<int>(), 2);
+  EXPECT_TRUE(fs::exists(d / "cine" / "run_01" / "frame_00000.png"));
+  EXPECT_TRUE(read_json(d / "paused.json")["paused"].get<bool>());
   Image s, l;
   ASSERT_TRUE(s.load(d / "small.png"));
   ASSERT_TRUE(l.load(d / "large.png"));
@@ -310,6 +328,7 @@ TEST(TrainerApp, ResizeRewindAndTheEducatorsViewKeepTheSessionReplayable) {
             read_json(d / "large.json")["fluoro_panel"][2].get<double>());
   const nlohmann::json m = read_json(d / "metrics.json");
   EXPECT_EQ(m["trainer"]["rewinds"].get<int>(), 1);
+  EXPECT_EQ(m["trainer"]["cine_runs"].get<int>(), 1);
   EXPECT_EQ(replay_hash(d), m["state_hash"].get<std::string>());
 }
 
