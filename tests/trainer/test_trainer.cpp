@@ -46,6 +46,18 @@ fs::path scratch(const std::string& name) {
   return d;
 }
 
+// A scratch folder removed when its test passes (kept to look at when it fails).
+struct Scratch {
+  fs::path d;
+  explicit Scratch(const std::string& name) : d(scratch(name)) {}
+  ~Scratch() {
+    if (!::testing::Test::HasFailure()) {
+      std::error_code ec;
+      fs::remove_all(d, ec);
+    }
+  }
+};
+
 nlohmann::json read_json(const fs::path& p) {
   std::ifstream in(p);
   return nlohmann::json::parse(in);
@@ -217,7 +229,8 @@ std::string replay_hash(const fs::path& dir, const std::string& scenario = "defa
 }
 
 TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameState) {
-  const fs::path d = scratch("session");
+  const Scratch scratch_dir("session");
+  const fs::path& d = scratch_dir.d;
   // The pedal, a push of the J wire, an injection, then the C-arm from LAO 40 CAU 30 to AP.
   std::ofstream(d / "s.json") << R"({"events": [
     {"t_s": 0.3, "key": "SPACE", "action": "press"},
@@ -279,7 +292,8 @@ TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameSta
 }
 
 TEST(TrainerApp, CinePauseResizeRewindAndTheEducatorsViewKeepTheSessionReplayable) {
-  const fs::path d = scratch("resize");
+  const Scratch scratch_dir("resize");
+  const fs::path& d = scratch_dir.d;
   std::ofstream(d / "s.json") << R"({"events": [
     {"t_s": 0.2, "key": "C", "action": "press"},
     {"t_s": 1.0, "key": "C", "action": "release"},
@@ -333,7 +347,8 @@ TEST(TrainerApp, CinePauseResizeRewindAndTheEducatorsViewKeepTheSessionReplayabl
 }
 
 TEST(TrainerApp, ClosingDuringAnInjectionSavesTheSession) {
-  const fs::path d = scratch("close");
+  const Scratch scratch_dir("close");
+  const fs::path& d = scratch_dir.d;
   std::ofstream(d / "s.json") << R"({"events": [
     {"t_s": 0.2, "key": "E", "action": "press"},
     {"t_s": 1.5, "close": true}]})";
@@ -361,7 +376,8 @@ int wait_for_port(CliProcess& p, const fs::path& err) {
 }
 
 TEST(TrainerApp, ADeviceConnectsDropsAndReconnectsBesideTheKeyboard) {
-  const fs::path d = scratch("device");
+  const Scratch scratch_dir("device");
+  const fs::path& d = scratch_dir.d;
   std::ofstream(d / "s.json") << R"({"events": [
     {"t_s": 0.2, "key": "W", "action": "press"},
     {"t_s": 1.0, "key": "W", "action": "release"},
@@ -407,7 +423,8 @@ TEST(TrainerApp, ADeviceConnectsDropsAndReconnectsBesideTheKeyboard) {
 }
 
 TEST(TrainerApp, BadInputIsAClearErrorAndNothingIsLost) {
-  const fs::path d = scratch("bad");
+  const Scratch scratch_dir("bad");
+  const fs::path& d = scratch_dir.d;
   // An earlier session's files in the output folder stay as they were.
   fs::create_directories(d / "out");
   std::ofstream(d / "out" / "recording.json") << "earlier";
