@@ -175,6 +175,18 @@ void PhysicsThread::handle(Request r, double seconds) {
 }
 
 void PhysicsThread::run() {
+  try {
+    loop();
+  } catch (const std::exception& e) {
+    // Nothing the window does reaches here (its commands are finite); should the engine fail,
+    // the session stops stepping and says why, and what was recorded is still saved.
+    message_ = std::string("physics stopped: ") + e.what();
+    std::fprintf(stderr, "trainer: %s\n", message_.c_str());
+    publish(true);
+  }
+}
+
+void PhysicsThread::loop() {
   const double dt = sim_.dt();
   std::unique_ptr<RealTimePacer> pacer;
   std::vector<std::pair<Request, double>> todo;

@@ -99,6 +99,7 @@ class PhysicsThread {
 
  private:
   void run();
+  void loop();
   void publish(bool paused);
   void handle(Request r, double seconds);
   void poll_commands();

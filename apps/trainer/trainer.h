@@ -30,6 +30,9 @@ struct TrainerOptions {
   const std::atomic<bool>* stop = nullptr;  // set by a signal: end the session as a close does
 };
 
+// Throws InputError naming xvfb-run when the machine has no display to open a window on.
+void require_display();
+
 // Runs a session until the window closes (or the script or benchmark ends, or *stop): returns
 // the exit status. Throws InputError for bad input (exit 2 in the CLI), including a machine
 // without a display, and std::runtime_error for what fails inside (no OpenGL 3.3).

@@ -932,14 +932,18 @@ void Viewer::finish() {
 
 }  // namespace
 
-int run_trainer(TrainerOptions o) {
-  // A machine without a display: say how to run it anyway, before anything else is built.
+void require_display() {
   const char* display = std::getenv("DISPLAY");
   const char* wayland = std::getenv("WAYLAND_DISPLAY");
   if ((!display || !*display) && (!wayland || !*wayland))
     throw InputError("trainer", "display",
                      "expected a display (DISPLAY is not set); on a machine without one run it "
                      "under a virtual X server: xvfb-run -a vcsim trainer");
+}
+
+int run_trainer(TrainerOptions o) {
+  // A machine without a display: say how to run it anyway, before anything else is built.
+  require_display();
   glfwSetErrorCallback(on_glfw_error);
   if (!glfwInit())
     throw InputError("trainer", "display",

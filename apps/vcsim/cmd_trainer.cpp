@@ -61,6 +61,14 @@ int cmd_trainer(const TrainerCliOptions& c) {
   o.scenario_file = file.string();
   o.device = open_device({c.device, c.port, c.port_given, c.address, c.address_given}, sc);
   o.device_address = c.address;
+  trainer::require_display();
+  if (o.write_outputs) {
+    // The folder is made now, so that a session is not lost at its end for want of it.
+    std::error_code ec;
+    fs::create_directories(o.out, ec);
+    if (ec || !fs::is_directory(o.out))
+      throw InputError("trainer", "--out", "expected a writable folder, got '" + o.out.string() + "'");
+  }
   if (o.device)
     std::cerr << "trainer: OpenIGTLink server listening on " << c.address << ":"
               << o.device->port() << std::endl;  // flushed: a client waits on it
