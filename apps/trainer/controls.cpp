@@ -142,7 +142,8 @@ void Controls::key(int k, int action, int mods, double now_us) {
       select(k - GLFW_KEY_1, now_us);
     } else if (k >= GLFW_KEY_F1 && k < GLFW_KEY_F1 + static_cast<int>(kViewPresets.size())) {
       set_preset(k - GLFW_KEY_F1);
-    } else if (k == GLFW_KEY_EQUAL || k == GLFW_KEY_KP_ADD || (k == GLFW_KEY_Z && !(mods & GLFW_MOD_SHIFT))) {
+    } else if (k == GLFW_KEY_EQUAL || k == GLFW_KEY_KP_ADD ||
+               (k == GLFW_KEY_Z && !(mods & GLFW_MOD_SHIFT))) {
       set_field(field_ + 1);  // smaller field: magnified
     } else if (k == GLFW_KEY_MINUS || k == GLFW_KEY_KP_SUBTRACT || k == GLFW_KEY_Z) {
       set_field(field_ - 1);
@@ -215,9 +216,7 @@ void Controls::gamepad(const GamepadState& s, double now_us) {
   const int n = std::max(1, num_instruments());
   if (pressed(GLFW_GAMEPAD_BUTTON_LEFT_BUMPER)) select((selected_ + n - 1) % n, now_us);
   if (pressed(GLFW_GAMEPAD_BUTTON_RIGHT_BUMPER)) select((selected_ + 1) % n, now_us);
-  auto trigger = [&](int axis) {
-    return s.axes[axis] > 0.5f && (!was || old.axes[axis] <= 0.5f);
-  };
+  auto trigger = [&](int axis) { return s.axes[axis] > 0.5f && (!was || old.axes[axis] <= 0.5f); };
   if (trigger(GLFW_GAMEPAD_AXIS_RIGHT_TRIGGER)) set_field(field_ + 1);
   if (trigger(GLFW_GAMEPAD_AXIS_LEFT_TRIGGER)) set_field(field_ - 1);
   // Only a change of what the hands do counts as an event; a stick held still does not.

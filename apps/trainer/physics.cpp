@@ -20,7 +20,8 @@ PhysicsThread::PhysicsThread(const Scenario& scenario, IgtlServer* device)
   recording_.scenario = scenario.name;
   recording_.scenario_file = scenario.source;
   recording_.dt = sim_.dt();
-  for (const ScenarioInstrument& si : scenario.instruments) recording_.instruments.push_back(si.name);
+  for (const ScenarioInstrument& si : scenario.instruments)
+    recording_.instruments.push_back(si.name);
   recording_.model_hash = sim_.model().hash();
   cmds_.reset(n);
   dev_cmds_.reset(n);

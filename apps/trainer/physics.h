@@ -43,16 +43,16 @@ struct ViewState {
   double time = 0.0;          // s simulated (procedure time)
   std::int64_t steps = 0;
   bool paused = false;
-  std::vector<double> depth, roll;     // (instrument) m, rad
-  std::vector<HandFeedback> feedback;  // (instrument) what each hand feels
+  std::vector<double> depth, roll;          // (instrument) m, rad
+  std::vector<HandFeedback> feedback;       // (instrument) what each hand feels
   std::vector<std::uint8_t> device_driven;  // (instrument) 1: the device commands it
-  double contrast_volume = 0.0;        // m^3 injected (the state's)
-  double syringe_flow = 0.0;           // m^3/s of the last step
-  double balloon_pressure = 0.0;       // Pa of the last step
-  std::uint32_t buttons = 0;           // of the last step
-  double fluoro_time = 0.0;            // s simulated with the fluoroscopy pedal down
-  std::uint64_t input_seq = 0;         // OperatorCommands::seq the last step used
-  double lag = 0.0;                    // s, the last step's lag behind the wall clock
+  double contrast_volume = 0.0;             // m^3 injected (the state's)
+  double syringe_flow = 0.0;                // m^3/s of the last step
+  double balloon_pressure = 0.0;            // Pa of the last step
+  std::uint32_t buttons = 0;                // of the last step
+  double fluoro_time = 0.0;                 // s simulated with the fluoroscopy pedal down
+  std::uint64_t input_seq = 0;              // OperatorCommands::seq the last step used
+  double lag = 0.0;                         // s, the last step's lag behind the wall clock
   int rollbacks = 0;
   std::vector<std::uint8_t> landmarks;  // (landmark) 1 when reached
   IgtlStats device;

@@ -104,7 +104,8 @@ std::vector<ScriptEvent> parse_script(std::string_view json_text, const std::str
       e.type = ScriptEvent::Type::kKey;
       const std::string name = f.text("key");
       e.key = key_code(name);
-      if (e.key < 0) f.fail("key", cat("expected a key name (W, SPACE, F1, LEFT, ...), got '", name, "'"));
+      if (e.key < 0)
+        f.fail("key", cat("expected a key name (W, SPACE, F1, LEFT, ...), got '", name, "'"));
       e.action = action();
       e.mods = mods();
     } else if (f.has("mouse")) {
@@ -136,7 +137,8 @@ std::vector<ScriptEvent> parse_script(std::string_view json_text, const std::str
         JsonFields gf(g, source, f.field("gamepad"));
         gf.keys({"axes", "buttons"});
         if (const Json* axes = gf.get("axes")) {
-          if (!axes->is_array() || axes->size() > 6) gf.fail("axes", "expected up to 6 numbers in [-1, 1]");
+          if (!axes->is_array() || axes->size() > 6)
+            gf.fail("axes", "expected up to 6 numbers in [-1, 1]");
           for (std::size_t k = 0; k < axes->size(); ++k)
             e.pad.axes[k] = static_cast<float>(std::clamp(
                 gf.as_number((*axes)[k], internal::index_path(gf.field("axes"), k)), -1.0, 1.0));
@@ -145,10 +147,13 @@ std::vector<ScriptEvent> parse_script(std::string_view json_text, const std::str
           e.pad.axes[GLFW_GAMEPAD_AXIS_RIGHT_TRIGGER] = -1.0f;
         }
         if (const Json* buttons = gf.get("buttons")) {
-          if (!buttons->is_array() || buttons->size() > 15) gf.fail("buttons", "expected up to 15 values 0 or 1");
+          if (!buttons->is_array() || buttons->size() > 15)
+            gf.fail("buttons", "expected up to 15 values 0 or 1");
           for (std::size_t k = 0; k < buttons->size(); ++k)
             e.pad.buttons[k] =
-                gf.as_number((*buttons)[k], internal::index_path(gf.field("buttons"), k)) != 0.0 ? 1 : 0;
+                gf.as_number((*buttons)[k], internal::index_path(gf.field("buttons"), k)) != 0.0
+                    ? 1
+                    : 0;
         }
         gf.finish();
       }
@@ -159,8 +164,10 @@ std::vector<ScriptEvent> parse_script(std::string_view json_text, const std::str
       e.type = ScriptEvent::Type::kResize;
       const Json& r = f.array("resize");
       if (r.size() != 2) f.fail("resize", "expected [width, height]");
-      e.x = require_in_range(f.as_number(r[0], f.field("resize")), 199.0, 8192.0, source, f.field("resize"));
-      e.y = require_in_range(f.as_number(r[1], f.field("resize")), 199.0, 8192.0, source, f.field("resize"));
+      e.x = require_in_range(f.as_number(r[0], f.field("resize")), 199.0, 8192.0, source,
+                             f.field("resize"));
+      e.y = require_in_range(f.as_number(r[1], f.field("resize")), 199.0, 8192.0, source,
+                             f.field("resize"));
     } else if (f.has("close")) {
       e.type = ScriptEvent::Type::kClose;
       f.boolean_or("close", true);

@@ -190,11 +190,10 @@ void View3D::draw(const FrameSnapshot& frame, int selected) {
   // The camera orbits the selected instrument's tip while it is inside (else the heart), gliding
   // there over a few frames; LPS: +z toward the head, -y anterior (the educator stands at the
   // patient's front).
-  const Vec3 target =
-      selected >= 0 && static_cast<std::size_t>(selected) < frame.nodes.size() &&
-              frame.nodes[static_cast<std::size_t>(selected)].size() >= 2
-          ? frame.nodes[static_cast<std::size_t>(selected)].back()
-          : home_;
+  const Vec3 target = selected >= 0 && static_cast<std::size_t>(selected) < frame.nodes.size() &&
+                              frame.nodes[static_cast<std::size_t>(selected)].size() >= 2
+                          ? frame.nodes[static_cast<std::size_t>(selected)].back()
+                          : home_;
   centre_ += 0.15 * (target - centre_);
   const Vec3 dir(std::cos(pitch_) * std::sin(yaw_), -std::cos(pitch_) * std::cos(yaw_),
                  std::sin(pitch_));

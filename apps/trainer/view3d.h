@@ -36,7 +36,7 @@ class View3D {
   int u_mvp_ = -1, u_color_ = -1, u_light_ = -1;
   std::vector<Vec3> rest_;
   std::vector<float> pos_, nrm_;
-  Vec3 home_ = Vec3::Zero(), centre_ = Vec3::Zero();  // the heart; what the camera looks at
+  Vec3 home_ = Vec3::Zero(), centre_ = Vec3::Zero();   // the heart; what the camera looks at
   double yaw_ = 0.6, pitch_ = 0.25, distance_ = 0.25;  // rad, rad, m
 };
 

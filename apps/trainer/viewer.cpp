@@ -26,9 +26,9 @@
 #include "physics.h"
 #include "script.h"
 #include "trainer.h"
-#include "view3d.h"
 #include "vcsim/render.h"
 #include "vcsim/units.h"
+#include "view3d.h"
 
 namespace vcsim::trainer {
 
@@ -417,8 +417,8 @@ void Viewer::draw_fluoro_panel(float x, float y, float side) {
   ImDrawList* dl = ImGui::GetWindowDrawList();
   const ImU32 amber = IM_COL32(255, 200, 60, 255), white = IM_COL32(235, 235, 235, 255);
   const float pad = 10.0f, line = ImGui::GetTextLineHeightWithSpacing();
-  dl->AddText(ImVec2(x + pad, y + pad),
-              white, angles_text(controls_.primary_deg(), controls_.secondary_deg()).c_str());
+  dl->AddText(ImVec2(x + pad, y + pad), white,
+              angles_text(controls_.primary_deg(), controls_.secondary_deg()).c_str());
   char buf[96];
   std::snprintf(buf, sizeof buf, "FOV %.0f cm", controls_.fov() * 100.0);
   dl->AddText(ImVec2(x + pad, y + pad + line), white, buf);
@@ -497,7 +497,8 @@ void Viewer::draw_side_panel(float x, float y, float w, float h) {
   }
   ImGui::Separator();
   ImGui::TextUnformatted("C-arm (J/L RAO-LAO, I/K CAU-CRA, F1-F7 views)");
-  ImGui::Text("%s   FOV %.0f cm", angles_text(controls_.primary_deg(), controls_.secondary_deg()).c_str(),
+  ImGui::Text("%s   FOV %.0f cm",
+              angles_text(controls_.primary_deg(), controls_.secondary_deg()).c_str(),
               controls_.fov() * 100.0);
   ImGui::Text("Table pan  %+.0f mm L  %+.0f mm H (Ctrl+arrows)", controls_.table_pan().x() * 1e3,
               controls_.table_pan().z() * 1e3);
@@ -519,7 +520,8 @@ void Viewer::draw_side_panel(float x, float y, float w, float h) {
     ImGui::Separator();
     ImGui::Text("OpenIGTLink %s:%d  %s", o_.device_address.c_str(), o_.device->port(),
                 view_.device.connected ? "connected" : "waiting");
-    ImGui::Text("  %llu connections, %llu messages", static_cast<unsigned long long>(view_.device.connections),
+    ImGui::Text("  %llu connections, %llu messages",
+                static_cast<unsigned long long>(view_.device.connections),
                 static_cast<unsigned long long>(view_.device.messages_accepted));
   }
   const Scenario& sc = physics_.model().scenario;
@@ -589,8 +591,8 @@ void Viewer::draw_menu() {
       const bool out = su < view_.depth.size() && view_.depth[su] <= 1e-3;
       const InstrumentKind kind = physics_.model().specs[su].kind;
       for (const InstrumentSpec& spec : catalogue_.items) {
-        const bool fits = spec.kind == kind ||
-                          (kind == InstrumentKind::kGuidewire) == (spec.kind == InstrumentKind::kGuidewire);
+        const bool fits = spec.kind == kind || (kind == InstrumentKind::kGuidewire) ==
+                                                   (spec.kind == InstrumentKind::kGuidewire);
         if (!fits) continue;
         if (ImGui::MenuItem(spec.name.c_str(), nullptr, false, true))
           status_ = out ? "exchange for " + spec.name +
@@ -864,7 +866,8 @@ void Viewer::finish() {
       {"lag_ms", {{"median", lag_med}, {"p99", lag_p99}, {"max", lag_max}, {"steps", lags.size()}}},
       {"latency_ms",
        {{"median", lat_med}, {"p90", lat_p90}, {"max", lat_max}, {"events", latency_ms_.size()}}},
-      {"render_ms_per_xray_frame", xray_frames_ > 0 ? render_s_ * 1e3 / static_cast<double>(xray_frames_) : 0.0},
+      {"render_ms_per_xray_frame",
+       xray_frames_ > 0 ? render_s_ * 1e3 / static_cast<double>(xray_frames_) : 0.0},
       {"sim_time_s", sim.time()},
       {"wall_time_s", wall},
       {"late_steps", physics_.loop_stats().late_steps},
@@ -958,8 +961,7 @@ int run_trainer(TrainerOptions o) {
   glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
   const std::string title = "vcsim trainer: " + o.scenario.name;
   GLFWwindow* win = glfwCreateWindow(o.width, o.height, title.c_str(), nullptr, nullptr);
-  if (!win)
-    throw std::runtime_error("trainer: no OpenGL 3.3 core window (" + g_glfw_error + ")");
+  if (!win) throw std::runtime_error("trainer: no OpenGL 3.3 core window (" + g_glfw_error + ")");
   struct WindowEnd {
     GLFWwindow* w;
     ~WindowEnd() { glfwDestroyWindow(w); }
@@ -990,9 +992,8 @@ int run_trainer(TrainerOptions o) {
   int status = 0;
   {
     Viewer viewer(o, win);
-    std::cerr << "trainer: " << o.scenario.name << " ready in " << (now_us() - t0) * 1e-6
-              << " s (" << reinterpret_cast<const char*>(glGetString(GL_RENDERER)) << ")"
-              << std::endl;
+    std::cerr << "trainer: " << o.scenario.name << " ready in " << (now_us() - t0) * 1e-6 << " s ("
+              << reinterpret_cast<const char*>(glGetString(GL_RENDERER)) << ")" << std::endl;
     status = viewer.run(t0);
   }
   return status;

@@ -156,9 +156,7 @@ int cmd_run(const RunOptions& o) {
   report.end_time = timeline ? std::min(sc.time_limit, timeline->duration()) : sc.time_limit;
   // A recording is replayed whole, however long the session was: its steps and no more (the
   // loop stops once the time passes half a step before the last step's end).
-  if (replay)
-    report.end_time =
-        (static_cast<double>(replay->recording().steps()) - 0.5) * sim.dt();
+  if (replay) report.end_time = (static_cast<double>(replay->recording().steps()) - 0.5) * sim.dt();
 
   ImageChainSettings chain;
   chain.dose = sc.fluoro.dose;

@@ -67,11 +67,12 @@ int cmd_trainer(const TrainerCliOptions& c) {
     std::error_code ec;
     fs::create_directories(o.out, ec);
     if (ec || !fs::is_directory(o.out))
-      throw InputError("trainer", "--out", "expected a writable folder, got '" + o.out.string() + "'");
+      throw InputError("trainer", "--out",
+                       "expected a writable folder, got '" + o.out.string() + "'");
   }
   if (o.device)
-    std::cerr << "trainer: OpenIGTLink server listening on " << c.address << ":"
-              << o.device->port() << std::endl;  // flushed: a client waits on it
+    std::cerr << "trainer: OpenIGTLink server listening on " << c.address << ":" << o.device->port()
+              << std::endl;  // flushed: a client waits on it
   o.scenario = std::move(sc);
   // A closed pipe on stdout or stderr (a terminal gone, `| head`) must not kill the session
   // before it is saved: a write fails instead.
@@ -84,7 +85,8 @@ int cmd_trainer(const TrainerCliOptions& c) {
 void install(CLI::App& app, int& status) {
   auto o = std::make_shared<TrainerCliOptions>();
   auto* cmd = app.add_subcommand(
-      "trainer", "The interactive trainer: a window to perform the procedure (xvfb-run -a without a display)");
+      "trainer",
+      "The interactive trainer: a window to perform the procedure (xvfb-run -a without a display)");
   cmd->add_option("scenario", o->scenario,
                   "Scenario file, or a name in data/scenarios (default: default; its autopilot is "
                   "not used: you drive)");

@@ -399,7 +399,7 @@ class RealTimePacer {
   explicit RealTimePacer(double step_s, double max_catch_up_s = 0.25);
   void wait(double sim_time);  // s
   std::int64_t late_steps() const { return late_; }
-  double max_lag() const { return max_lag_; }  // s, the largest lag seen (before any resync)
+  double max_lag() const { return max_lag_; }    // s, the largest lag seen (before any resync)
   double last_lag() const { return last_lag_; }  // s, the last wait's lag (0: on time)
   std::int64_t resyncs() const { return resyncs_; }
 

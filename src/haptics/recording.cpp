@@ -51,8 +51,9 @@ std::string hex64(std::uint64_t v) {
 
 std::uint64_t parse_hex64(const std::string& s, const std::string& source,
                           const std::string& field) {
-  if (s.empty() || s.size() > 16 ||
-      !std::all_of(s.begin(), s.end(), [](char c) { return std::isxdigit(static_cast<unsigned char>(c)); }))
+  if (s.empty() || s.size() > 16 || !std::all_of(s.begin(), s.end(), [](char c) {
+        return std::isxdigit(static_cast<unsigned char>(c));
+      }))
     throw InputError(source, field, cat("expected up to 16 hexadecimal digits, got '", s, "'"));
   return std::stoull(s, nullptr, 16);
 }
@@ -176,7 +177,8 @@ CommandRecording CommandRecording::parse(std::string_view json_text, const std::
   root.keys({"format", "version", "made_by", "scenario", "scenario_file", "dt_s", "instruments",
              "model_hash", "state_hash", "steps", "columns", "units", "runs"});
   if (root.string("format") != "vcsim-recording")
-    root.fail("format", cat("expected \"vcsim-recording\", got ", internal::describe_json(doc["format"])));
+    root.fail("format",
+              cat("expected \"vcsim-recording\", got ", internal::describe_json(doc["format"])));
   if (root.integer_or("version", 1, 1, 1) != 1) root.fail("version", "expected 1");
   CommandRecording rec;
   rec.made_by = root.string_or("made_by", "");
@@ -244,8 +246,8 @@ CommandRecording CommandRecording::parse(std::string_view json_text, const std::
   }
   rec.total_ = total;
   if (static_cast<double>(total) != steps)
-    root.fail("steps", cat("expected the sum of the runs' steps, ", std::to_string(total),
-                           ", got ", internal::describe_json(doc["steps"])));
+    root.fail("steps", cat("expected the sum of the runs' steps, ", std::to_string(total), ", got ",
+                           internal::describe_json(doc["steps"])));
   return rec;
 }
 

@@ -408,7 +408,8 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
     // A parked instrument was not stepped: its contact list is an earlier step's (before a
     // restore, another run's), so it has none this step.
     if (!in.parked)
-      for (const NodeContact& c : ws.contacts(static_cast<int>(i))) f = std::max(f, c.lambda_n / dt);
+      for (const NodeContact& c : ws.contacts(static_cast<int>(i)))
+        f = std::max(f, c.lambda_n / dt);
     m.peak_wall_force[i] = std::max(m.peak_wall_force[i], f);
     m.peak_axial_force[i] = std::max(m.peak_axial_force[i], std::abs(in.drive.axial_force));
     m.peak_torque[i] = std::max(m.peak_torque[i], std::abs(in.drive.torque));

@@ -117,7 +117,7 @@ TEST(TrainerControls, PedalsSyringeSelectionAndTheCArm) {
   c.update(1e6);
   c.key(GLFW_KEY_L, GLFW_PRESS, 0, 1e6);
   for (int k = 1; k <= 10; ++k) c.update(1e6 + 5e4 * k);  // frames of 50 ms
-  EXPECT_NEAR(c.primary_deg(), 50.0, 1e-9);  // 20 deg/s for 0.5 s
+  EXPECT_NEAR(c.primary_deg(), 50.0, 1e-9);               // 20 deg/s for 0.5 s
   c.key(GLFW_KEY_F1, GLFW_PRESS, 0, 2e6);
   EXPECT_EQ(c.primary_deg(), 0.0);
   EXPECT_EQ(c.secondary_deg(), 0.0);
@@ -155,10 +155,10 @@ TEST(TrainerPhysics, ARestoredStateStepsOnAsAFreshOne) {
 }
 
 TEST(TrainerScript, ABadScriptIsAnErrorNamingTheField) {
-  EXPECT_EQ(trainer::parse_script(R"({"events": [{"t_s": 1, "key": "W", "action": "press"}]})",
-                                  "s.json")
-                .size(),
-            1u);
+  EXPECT_EQ(
+      trainer::parse_script(R"({"events": [{"t_s": 1, "key": "W", "action": "press"}]})", "s.json")
+          .size(),
+      1u);
   try {
     trainer::parse_script(R"({"events": [{"t_s": 1, "key": "NOPE", "action": "press"}]})",
                           "s.json");
@@ -166,9 +166,9 @@ TEST(TrainerScript, ABadScriptIsAnErrorNamingTheField) {
   } catch (const InputError& e) {
     EXPECT_EQ(e.field(), "events[0].key");
   }
-  EXPECT_THROW(trainer::parse_script(R"({"events": [{"t_s": 1, "key": "W", "action": "hold"}]})",
-                                     "s.json"),
-               InputError);
+  EXPECT_THROW(
+      trainer::parse_script(R"({"events": [{"t_s": 1, "key": "W", "action": "hold"}]})", "s.json"),
+      InputError);
 }
 
 // ---- the app under a virtual X server ----
@@ -273,7 +273,8 @@ TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameSta
   double mean = 0, var = 0, diff = 0;
   for (double v : ma) mean += v / static_cast<double>(ma.size());
   for (double v : ma) var += (v - mean) * (v - mean) / static_cast<double>(ma.size());
-  for (std::size_t k = 0; k < ma.size(); ++k) diff += std::abs(ma[k] - mb[k]) / static_cast<double>(ma.size());
+  for (std::size_t k = 0; k < ma.size(); ++k)
+    diff += std::abs(ma[k] - mb[k]) / static_cast<double>(ma.size());
   EXPECT_GT(mean, 15.0);
   EXPECT_LT(mean, 240.0);
   EXPECT_GT(std::sqrt(var), 3.0) << "a flat panel";
