@@ -59,7 +59,8 @@ int cmd_trainer(const TrainerCliOptions& c) {
   o.write_outputs = !c.bench || !c.out.empty();
   o.out = c.out.empty() ? fs::path("out") / ("trainer-" + sc.name) : fs::path(c.out);
   o.scenario_file = file.string();
-  o.device = open_device({c.device, c.port, c.port_given, c.address, c.address_given}, sc);
+  o.device =
+      open_device({c.device, c.port, c.port_given, c.address, c.address_given, "trainer"}, sc);
   o.device_address = c.address;
   trainer::require_display();
   if (o.write_outputs) {
