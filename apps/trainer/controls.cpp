@@ -231,6 +231,14 @@ void Controls::gamepad_lost(double now_us) {
   event_changed(now_us);
 }
 
+void Controls::release_all(double now_us) {
+  keys_.clear();
+  mods_ = 0;
+  fluoro_key_ = cine_key_ = inject_key_ = deploy_ = false;
+  dragging_ = false;
+  event_changed(now_us);
+}
+
 void Controls::set_fluoro_area(double x0, double y0, double x1, double y1) {
   area_[0] = x0;
   area_[1] = y0;

@@ -80,6 +80,9 @@ class Controls {
   void scroll(double dx, double dy, bool over_fluoro, double now_us);
   void gamepad(const GamepadState& s, double now_us);
   void gamepad_lost(double now_us);
+  // The window lost the keyboard: every key and the mouse let go (a release the window will
+  // never see must not leave a wire moving or the beam on).
+  void release_all(double now_us);
   // The fluoroscopy panel in window coordinates: a mouse drag starts only on it.
   void set_fluoro_area(double x0, double y0, double x1, double y1);
   // Menu items and sliders (the same effects as their keys).

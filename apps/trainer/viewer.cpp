@@ -111,6 +111,7 @@ class Viewer {
   void on_mouse_button(int button, int action, int mods, double when_us);
   void on_cursor(double x, double y, double when_us);
   void on_scroll(double dx, double dy);
+  void on_focus_lost() { controls_.release_all(now_us()); }
 
  private:
   void frame();
@@ -190,6 +191,9 @@ void cursor_cb(GLFWwindow*, double x, double y) {
 }
 void scroll_cb(GLFWwindow*, double dx, double dy) {
   if (g_viewer) g_viewer->on_scroll(dx, dy);
+}
+void focus_cb(GLFWwindow*, int focused) {
+  if (g_viewer && !focused) g_viewer->on_focus_lost();
 }
 
 Viewer::Viewer(TrainerOptions& o, GLFWwindow* win)
@@ -973,6 +977,7 @@ int run_trainer(TrainerOptions o) {
   glfwSetMouseButtonCallback(win, mouse_cb);
   glfwSetCursorPosCallback(win, cursor_cb);
   glfwSetScrollCallback(win, scroll_cb);
+  glfwSetWindowFocusCallback(win, focus_cb);
 
   IMGUI_CHECKVERSION();
   ImGui::CreateContext();

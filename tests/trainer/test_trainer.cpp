@@ -131,6 +131,12 @@ TEST(TrainerControls, PedalsSyringeSelectionAndTheCArm) {
   EXPECT_NEAR(c.commands().drive[1].translation, 50e-3, 1e-12);
   c.gamepad_lost(3.1e6);
   EXPECT_EQ(c.commands().drive[1].translation, 0.0);
+  // The window losing the keyboard lets every key go: nothing keeps moving, the beam goes off.
+  c.key(GLFW_KEY_W, GLFW_PRESS, 0, 4e6);
+  c.key(GLFW_KEY_SPACE, GLFW_PRESS, 0, 4e6);
+  c.release_all(4.1e6);
+  EXPECT_EQ(c.commands().drive[1].translation, 0.0);
+  EXPECT_EQ(c.commands().buttons, 0u);
 }
 
 // What a rewind and a restart rely on: a state restored after other steps (here, the wire pushed
