@@ -1,11 +1,10 @@
-// The trainer's window (trainer.h): GLFW + Dear ImGui on the main thread, the fluoroscopy drawn
-// into the window's GL context from the latest copy of the state the physics thread hands over
-// (physics.h), the controls (controls.h), scripted input (script.h), cine, screenshots, and the
-// session's files at the end. docs/trainer.md describes what the person sees and does.
-#define GL_GLEXT_PROTOTYPES
-#include <GL/glcorearb.h>
-#define GLFW_INCLUDE_NONE
-#include <GLFW/glfw3.h>
+// The trainer's window (trainer.h, viewer.h): GLFW + Dear ImGui on the main thread, the
+// fluoroscopy drawn into the window's GL context from the latest copy of the state the physics
+// thread hands over (physics.h), the controls (controls.h), scripted input (script.h), cine,
+// screenshots, the frame loop, and the session's files at the end (the panels: panels.cpp).
+// docs/trainer.md describes what the person sees and does.
+#include "viewer.h"
+
 #include <backends/imgui_impl_glfw.h>
 #include <backends/imgui_impl_opengl3.h>
 #include <imgui.h>
@@ -22,17 +21,9 @@
 #include <stdexcept>
 #include <thread>
 
-#include "controls.h"
-#include "physics.h"
-#include "script.h"
-#include "trainer.h"
-#include "vcsim/render.h"
 #include "vcsim/units.h"
-#include "view3d.h"
 
 namespace vcsim::trainer {
-
-namespace fs = std::filesystem;
 
 namespace {
 
@@ -42,21 +33,6 @@ void on_glfw_error(int code, const char* what) {
   (void)code;
 }
 
-// "LAO 40  CAU 30": the angles as a C-arm's display shows them.
-std::string angles_text(double primary, double secondary) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%s %.0f\xc2\xb0  %s %.0f\xc2\xb0", primary >= 0 ? "LAO" : "RAO",
-                std::abs(primary), secondary >= 0 ? "CRA" : "CAU", std::abs(secondary));
-  return buf;
-}
-
-std::string clock_text(double s) {
-  char buf[32];
-  const int m = static_cast<int>(s / 60.0);
-  std::snprintf(buf, sizeof buf, "%02d:%04.1f", m, s - 60.0 * m);
-  return buf;
-}
-
 // The q-quantile (0.5: the median) of the values, 0 for none.
 double quantile(std::vector<double> v, double q) {
   if (v.empty()) return 0.0;
@@ -64,119 +40,6 @@ double quantile(std::vector<double> v, double q) {
   std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
   return v[k];
 }
-
-// The display of an image system: a grey texture (row 0 at the top) shown in ImGui.
-struct GreyTexture {
-  GLuint id = 0;
-  int size = 0;
-  explicit GreyTexture(int n) : size(n) {
-    glGenTextures(1, &id);
-    glBindTexture(GL_TEXTURE_2D, id);
-    const std::vector<std::uint8_t> black(static_cast<std::size_t>(n) * n, 0);
-    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-    glTexImage2D(GL_TEXTURE_2D, 0, GL_R8, n, n, 0, GL_RED, GL_UNSIGNED_BYTE, black.data());
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-    const GLint swizzle[] = {GL_RED, GL_RED, GL_RED, GL_ONE};
-    glTexParameteriv(GL_TEXTURE_2D, GL_TEXTURE_SWIZZLE_RGBA, swizzle);
-  }
-  ~GreyTexture() { glDeleteTextures(1, &id); }
-  void upload(const std::vector<std::uint8_t>& img) {
-    glBindTexture(GL_TEXTURE_2D, id);
-    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-    glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, size, size, GL_RED, GL_UNSIGNED_BYTE, img.data());
-  }
-};
-
-struct CineRun {
-  std::vector<std::vector<std::uint8_t>> frames;
-  bool saved = false;
-  fs::path dir;
-};
-
-// Memory for cine: at most this many frames in all (512 x 512: 256 kB each, 150 MB).
-constexpr std::size_t kMaxCineFrames = 600;
-constexpr double kCineFps = 15.0;
-
-class Viewer {
- public:
-  Viewer(TrainerOptions& o, GLFWwindow* win);
-  ~Viewer();
-  int run(double started_us);
-
-  // The GLFW callbacks land here (and the script calls the same). `when_us`: when the event
-  // happened (the wall clock, now_us()); a callback passes the time it is called, the script the
-  // time an event was due (it waits for the next frame as a key press waits in the X queue).
-  void on_key(int key, int action, int mods, double when_us);
-  void on_mouse_button(int button, int action, int mods, double when_us);
-  void on_cursor(double x, double y, double when_us);
-  void on_scroll(double dx, double dy);
-  void on_focus_lost() { controls_.release_all(now_us()); }
-
- private:
-  void frame();
-  void run_script(double now);
-  void do_actions();
-  void do_action(Action a);
-  void render_xray();
-  void draw_ui();
-  void draw_fluoro_panel(float x, float y, float side);
-  void draw_side_panel(float x, float y, float w, float h);
-  void draw_menu();
-  void take_screenshot(const fs::path& file);
-  void save_cine();
-  void finish();
-  nlohmann::json overlay_json() const;
-  fs::path out_path(const std::string& name) const {
-    const fs::path p(name);
-    return p.is_absolute() ? p : o_.out / p;
-  }
-
-  TrainerOptions& o_;
-  GLFWwindow* win_;
-  PhysicsThread physics_;
-  Controls controls_;
-  SimFluoroscopy fluoro_;
-  GreyTexture tex_;
-  std::unique_ptr<View3D> view3d_;
-  InstrumentCatalogue catalogue_;
-  Vec3 home_;
-  ImageChainSettings chain_;
-  ViewState view_;
-  std::vector<std::uint8_t> image_;
-  bool have_image_ = false;
-  std::uint64_t drawn_version_ = 0;
-  std::int64_t xray_frames_ = 0;
-  double render_s_ = 0.0;
-  bool xray_now_ = false;
-  // Cine: runs recorded while the cine pedal is held, at 15 frames per simulated second.
-  std::vector<CineRun> cine_;
-  bool cine_open_ = false;
-  double next_cine_ = 0.0;
-  std::size_t cine_total_ = 0;
-  bool review_ = false;
-  std::size_t review_frame_ = 0;
-  double review_next_us_ = 0.0;
-  bool show3d_ = false, help_ = false;
-  std::string status_;
-  // Panels in window coordinates.
-  float fluoro_x_ = 0, fluoro_y_ = 0, fluoro_side_ = 0;
-  float view3d_rect_[4] = {0, 0, 0, 0};
-  bool orbiting_ = false;
-  double last_cursor_[2] = {0, 0};
-  // Script and measurement.
-  std::vector<ScriptEvent> script_;
-  std::size_t next_event_ = 0;
-  bool scripted_pad_ = false;
-  double t0_us_ = 0.0;
-  std::vector<fs::path> pending_shots_;
-  std::vector<std::string> shots_taken_;
-  std::vector<double> frame_us_;  // wall clock of each swap
-  std::vector<double> latency_ms_;
-  double session_start_us_ = 0.0;
-  double setup_s_ = 0.0;
-  double deploy_until_us_ = 0.0;
-};
 
 Viewer* g_viewer = nullptr;
 
@@ -195,6 +58,8 @@ void scroll_cb(GLFWwindow*, double dx, double dy) {
 void focus_cb(GLFWwindow*, int focused) {
   if (g_viewer && !focused) g_viewer->on_focus_lost();
 }
+
+}  // namespace
 
 Viewer::Viewer(TrainerOptions& o, GLFWwindow* win)
     : o_(o),
@@ -388,296 +253,6 @@ void Viewer::render_xray() {
       ++cine_total_;
       next_cine_ += 1.0 / kCineFps;
     }
-  }
-}
-
-void Viewer::draw_fluoro_panel(float x, float y, float side) {
-  fluoro_x_ = x;
-  fluoro_y_ = y;
-  fluoro_side_ = side;
-  controls_.set_fluoro_area(x, y, x + side, y + side);
-  ImGui::SetNextWindowPos(ImVec2(x, y));
-  ImGui::SetNextWindowSize(ImVec2(side, side));
-  ImGui::PushStyleVar(ImGuiStyleVar_WindowPadding, ImVec2(0, 0));
-  ImGui::PushStyleVar(ImGuiStyleVar_WindowBorderSize, 0.0f);
-  ImGui::Begin("Fluoroscopy", nullptr,
-               ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_NoMove |
-                   ImGuiWindowFlags_NoBringToFrontOnFocus | ImGuiWindowFlags_NoScrollWithMouse);
-  // In review the last cine run loops at its frame rate; otherwise the live (or held) image.
-  if (review_ && !cine_.empty() && !cine_.back().frames.empty()) {
-    const CineRun& run = cine_.back();
-    const double now = now_us();
-    if (review_next_us_ == 0.0 || now >= review_next_us_) {
-      review_frame_ = (review_next_us_ == 0.0) ? 0 : (review_frame_ + 1) % run.frames.size();
-      tex_.upload(run.frames[review_frame_]);
-      review_next_us_ = now + 1e6 / kCineFps;
-    }
-  } else if (review_next_us_ != 0.0) {
-    review_next_us_ = 0.0;
-    if (have_image_) tex_.upload(image_);  // back to the held image
-  }
-  ImGui::Image(reinterpret_cast<ImTextureID>(static_cast<std::intptr_t>(tex_.id)),
-               ImVec2(side, side));
-  ImDrawList* dl = ImGui::GetWindowDrawList();
-  const ImU32 amber = IM_COL32(255, 200, 60, 255), white = IM_COL32(235, 235, 235, 255);
-  const float pad = 10.0f, line = ImGui::GetTextLineHeightWithSpacing();
-  dl->AddText(ImVec2(x + pad, y + pad), white,
-              angles_text(controls_.primary_deg(), controls_.secondary_deg()).c_str());
-  char buf[96];
-  std::snprintf(buf, sizeof buf, "FOV %.0f cm", controls_.fov() * 100.0);
-  dl->AddText(ImVec2(x + pad, y + pad + line), white, buf);
-  std::snprintf(buf, sizeof buf, "FL %s", clock_text(view_.fluoro_time).c_str());
-  const float w = ImGui::CalcTextSize(buf).x;
-  dl->AddText(ImVec2(x + side - w - pad, y + pad), amber, buf);
-  std::snprintf(buf, sizeof buf, "T %s", clock_text(view_.time).c_str());
-  dl->AddText(ImVec2(x + side - ImGui::CalcTextSize(buf).x - pad, y + pad + line), white, buf);
-  if (xray_now_) {
-    dl->AddCircleFilled(ImVec2(x + side - pad - 6, y + pad + 2.6f * line), 6.0f,
-                        IM_COL32(255, 190, 0, 255));
-    const char* what = controls_.cine_pedal() ? "CINE" : "FLUORO";
-    dl->AddText(ImVec2(x + side - pad - 18 - ImGui::CalcTextSize(what).x, y + pad + 2.1f * line),
-                amber, what);
-  } else if (review_) {
-    std::snprintf(buf, sizeof buf, "REVIEW %zu/%zu", review_frame_ + 1,
-                  cine_.empty() ? 0 : cine_.back().frames.size());
-    dl->AddText(ImVec2(x + pad, y + side - pad - line), amber, buf);
-  } else if (have_image_) {
-    dl->AddText(ImVec2(x + pad, y + side - pad - line), white, "LIH");
-  } else {
-    const char* t = "Hold SPACE for fluoroscopy";
-    const ImVec2 ts = ImGui::CalcTextSize(t);
-    dl->AddText(ImVec2(x + (side - ts.x) / 2, y + side / 2), IM_COL32(150, 150, 150, 255), t);
-  }
-  if (view_.paused) {
-    const char* t = "PAUSED";
-    dl->AddText(ImVec2(x + (side - ImGui::CalcTextSize(t).x) / 2, y + pad), amber, t);
-  }
-  if (controls_.injecting()) {
-    std::snprintf(buf, sizeof buf, "INJECT %.1f ml/s", controls_.inject_flow() / kMl);
-    dl->AddText(ImVec2(x + side - ImGui::CalcTextSize(buf).x - pad, y + side - pad - line), amber,
-                buf);
-  }
-  ImGui::End();
-  ImGui::PopStyleVar(2);
-}
-
-void Viewer::draw_side_panel(float x, float y, float w, float h) {
-  ImGui::SetNextWindowPos(ImVec2(x, y));
-  ImGui::SetNextWindowSize(ImVec2(w, h));
-  ImGui::Begin("Procedure", nullptr,
-               ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoCollapse);
-  const double wall = (now_us() - session_start_us_) * 1e-6;
-  ImGui::Text("Procedure time   %s", clock_text(view_.time).c_str());
-  ImGui::Text("Session (wall)   %s", clock_text(wall).c_str());
-  ImGui::Text("Fluoroscopy time %s", clock_text(view_.fluoro_time).c_str());
-  ImGui::Text("Cine runs        %zu (%zu frames)", cine_.size(), cine_total_);
-  ImGui::Text("Contrast used    %.1f ml", view_.contrast_volume / kMl);
-  ImGui::Text("Syringe          %.1f ml/s%s", view_.syringe_flow / kMl,
-              controls_.injecting() ? "  (injecting)" : "");
-  ImGui::Text("Physics lag      %.1f ms%s", view_.lag * 1e3, view_.paused ? "  PAUSED" : "");
-  ImGui::Separator();
-  ImGui::TextUnformatted("Instruments (Tab / 1-9 select; W/S push/pull, A/D turn)");
-  const int n = controls_.num_instruments();
-  for (int i = 0; i < n; ++i) {
-    const auto u = static_cast<std::size_t>(i);
-    char label[128];
-    std::snprintf(label, sizeof label, "%d %s%s", i + 1, controls_.name(i).c_str(),
-                  u < view_.device_driven.size() && view_.device_driven[u] ? " [device]" : "");
-    if (ImGui::RadioButton(label, controls_.selected() == i)) controls_.select(i, now_us());
-    const double depth = u < view_.depth.size() ? view_.depth[u] : 0.0;
-    const double roll = u < view_.roll.size() ? view_.roll[u] : 0.0;
-    const HandFeedback f = u < view_.feedback.size() ? view_.feedback[u] : HandFeedback{};
-    ImGui::Text("   %6.1f mm  %7.0f\xc2\xb0  %+5.2f N  %+5.2f N mm", depth * 1e3, roll / kDeg,
-                f.axial_force, f.torque * 1e3);
-    // The hand force as a bar: full at 2 N (a firm push).
-    char overlay[32];
-    std::snprintf(overlay, sizeof overlay, "%.2f N", f.axial_force);
-    const float frac = static_cast<float>(std::min(1.0, std::abs(f.axial_force) / 2.0));
-    ImGui::PushStyleColor(ImGuiCol_PlotHistogram, f.axial_force >= 0
-                                                      ? ImVec4(0.9f, 0.55f, 0.2f, 1.0f)
-                                                      : ImVec4(0.3f, 0.6f, 0.9f, 1.0f));
-    ImGui::ProgressBar(frac, ImVec2(-1, 0), overlay);
-    ImGui::PopStyleColor();
-  }
-  ImGui::Separator();
-  ImGui::TextUnformatted("C-arm (J/L RAO-LAO, I/K CAU-CRA, F1-F7 views)");
-  ImGui::Text("%s   FOV %.0f cm",
-              angles_text(controls_.primary_deg(), controls_.secondary_deg()).c_str(),
-              controls_.fov() * 100.0);
-  ImGui::Text("Table pan  %+.0f mm L  %+.0f mm H (Ctrl+arrows)", controls_.table_pan().x() * 1e3,
-              controls_.table_pan().z() * 1e3);
-  for (std::size_t i = 0; i < kViewPresets.size(); ++i) {
-    char b[16];
-    std::snprintf(b, sizeof b, "F%zu", i + 1);
-    if (i > 0) ImGui::SameLine();
-    if (ImGui::SmallButton(b)) controls_.set_preset(static_cast<int>(i));
-    if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", kViewPresets[i].name);
-  }
-  ImGui::Separator();
-  float flow = static_cast<float>(controls_.inject_flow() / kMl);
-  if (ImGui::SliderFloat("Injection ml/s (hold E)", &flow, 0.5f, 6.0f, "%.1f"))
-    controls_.set_inject_flow(flow * kMl);
-  float atm = static_cast<float>(controls_.balloon_pressure() / kAtm);
-  if (ImGui::SliderFloat("Indeflator atm ([ ])", &atm, 0.0f, 20.0f, "%.1f"))
-    controls_.set_balloon(atm * kAtm, now_us());
-  if (o_.device) {
-    ImGui::Separator();
-    ImGui::Text("OpenIGTLink %s:%d  %s", o_.device_address.c_str(), o_.device->port(),
-                view_.device.connected ? "connected" : "waiting");
-    ImGui::Text("  %llu connections, %llu messages",
-                static_cast<unsigned long long>(view_.device.connections),
-                static_cast<unsigned long long>(view_.device.messages_accepted));
-  }
-  const Scenario& sc = physics_.model().scenario;
-  if (!sc.landmarks.empty()) {
-    ImGui::Separator();
-    for (std::size_t k = 0; k < sc.landmarks.size(); ++k)
-      ImGui::Text("%s %s", k < view_.landmarks.size() && view_.landmarks[k] ? "[x]" : "[ ]",
-                  sc.landmarks[k].name.c_str());
-  }
-  if (!status_.empty() || !view_.message.empty()) {
-    ImGui::Separator();
-    ImGui::TextWrapped("%s", status_.empty() ? view_.message.c_str() : status_.c_str());
-  }
-  ImGui::End();
-}
-
-void Viewer::draw_menu() {
-  if (!ImGui::BeginMainMenuBar()) return;
-  if (ImGui::BeginMenu("Session")) {
-    if (ImGui::MenuItem(view_.paused ? "Resume" : "Pause", "P"))
-      physics_.request(Request::kTogglePause);
-    if (ImGui::MenuItem("Rewind 5 s", "B")) physics_.request(Request::kRewind, 5.0);
-    if (ImGui::MenuItem("Restart", "Ctrl+R")) physics_.request(Request::kRestart);
-    ImGui::Separator();
-    if (ImGui::MenuItem("Save cine runs as PNG", "Ctrl+S")) save_cine();
-    if (ImGui::MenuItem("Screenshot")) pending_shots_.push_back(out_path("screenshot.png"));
-    ImGui::Separator();
-    if (ImGui::MenuItem("End session (save)", "Esc")) glfwSetWindowShouldClose(win_, GLFW_TRUE);
-    ImGui::EndMenu();
-  }
-  if (ImGui::BeginMenu("View")) {
-    ImGui::MenuItem("Educator's 3D view", "G", &show3d_);
-    if (ImGui::MenuItem("Review last cine run", "V", review_)) do_action(Action::kToggleReview);
-    ImGui::MenuItem("Keys", "H", &help_);
-    ImGui::Separator();
-    for (std::size_t i = 0; i < kViewPresets.size(); ++i) {
-      char key[8];
-      std::snprintf(key, sizeof key, "F%zu", i + 1);
-      if (ImGui::MenuItem(kViewPresets[i].name, key)) controls_.set_preset(static_cast<int>(i));
-    }
-    ImGui::Separator();
-    for (std::size_t i = 0; i < kFieldSizesMm.size(); ++i) {
-      char name[32];
-      std::snprintf(name, sizeof name, "Field %.0f cm", kFieldSizesMm[i] / 10.0);
-      if (ImGui::MenuItem(name, nullptr, controls_.field() == static_cast<int>(i)))
-        controls_.set_field(static_cast<int>(i));
-    }
-    ImGui::EndMenu();
-  }
-  if (ImGui::BeginMenu("Instruments")) {
-    for (int i = 0; i < controls_.num_instruments(); ++i) {
-      char key[16];
-      std::snprintf(key, sizeof key, "%d", i + 1);
-      if (ImGui::MenuItem(controls_.name(i).c_str(), key, controls_.selected() == i))
-        controls_.select(i, now_us());
-    }
-    ImGui::Separator();
-    // Exchange: the slot's instrument must be out of the patient. The engine cannot swap an
-    // instrument's model during a run yet. ENGINE HOOK (issue 25, the complete PCI): once the
-    // simulator can replace instrument i's spec (Simulator/SimModel), send the request to the
-    // physics thread here (a Request::kExchange with the catalogue name), record it in the
-    // command recording's header so that `vcsim run --replay` rebuilds the same scene, and
-    // enable these items.
-    if (ImGui::BeginMenu("Exchange selected for")) {
-      const int sel = controls_.selected();
-      const auto su = static_cast<std::size_t>(sel);
-      const bool out = su < view_.depth.size() && view_.depth[su] <= 1e-3;
-      const InstrumentKind kind = physics_.model().specs[su].kind;
-      for (const InstrumentSpec& spec : catalogue_.items) {
-        const bool fits = spec.kind == kind || (kind == InstrumentKind::kGuidewire) ==
-                                                   (spec.kind == InstrumentKind::kGuidewire);
-        if (!fits) continue;
-        if (ImGui::MenuItem(spec.name.c_str(), nullptr, false, true))
-          status_ = out ? "exchange for " + spec.name +
-                              ": waits for the engine's instrument swap (issue 25)"
-                        : "pull " + controls_.name(sel) + " out of the patient first";
-        if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", spec.description.c_str());
-      }
-      ImGui::EndMenu();
-    }
-    ImGui::EndMenu();
-  }
-  if (ImGui::BeginMenu("Balloon & stent")) {
-    // The indeflator's pressure and the deploy button reach the engine as StepCommands
-    // (balloon_pressure in Pa, buttons bit 2) and are recorded. ENGINE HOOK (issue 25): the
-    // procedure layer's balloon and stent read them in sim_step; nothing here changes then.
-    for (double a : {0.0, 4.0, 8.0, 12.0, 16.0}) {
-      char name[32];
-      std::snprintf(name, sizeof name, "Indeflator %.0f atm", a);
-      if (ImGui::MenuItem(name, nullptr, std::abs(controls_.balloon_pressure() / kAtm - a) < 0.05))
-        controls_.set_balloon(a * kAtm, now_us());
-    }
-    ImGui::Separator();
-    if (ImGui::MenuItem("Deploy stent (hold Enter)")) {
-      controls_.set_deploy(true, now_us());
-      deploy_until_us_ = now_us() + 5e5;
-      status_ = "stent deployment sent (the engine's stent arrives with issue 25)";
-    }
-    ImGui::EndMenu();
-  }
-  char buf[128];
-  std::snprintf(buf, sizeof buf, "   %s   %s   FL %s", o_.scenario.name.c_str(),
-                clock_text(view_.time).c_str(), clock_text(view_.fluoro_time).c_str());
-  ImGui::TextUnformatted(buf);
-  ImGui::EndMainMenuBar();
-}
-
-void Viewer::draw_ui() {
-  int fw = 0, fh = 0;
-  glfwGetWindowSize(win_, &fw, &fh);
-  draw_menu();
-  const float top = ImGui::GetFrameHeight();
-  const float side_w = std::min(380.0f, std::max(260.0f, 0.34f * static_cast<float>(fw)));
-  const float avail_h = static_cast<float>(fh) - top;
-  const float side = std::max(64.0f, std::min(avail_h, static_cast<float>(fw) - side_w));
-  draw_fluoro_panel(0.0f, top, side);
-  draw_side_panel(side, top, static_cast<float>(fw) - side, avail_h);
-  if (show3d_) {
-    if (!view3d_) view3d_ = std::make_unique<View3D>(physics_.model(), 384);
-    view3d_->draw(view_.frame, controls_.selected());
-    const float s = std::min(300.0f, 0.45f * side);
-    ImGui::SetNextWindowPos(ImVec2(side - s - 8.0f, top + side - s - 30.0f), ImGuiCond_Appearing);
-    ImGui::Begin("Educator's 3D view (drag: turn, wheel: zoom)", &show3d_,
-                 ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoScrollWithMouse);
-    const ImVec2 p = ImGui::GetCursorScreenPos();
-    ImGui::Image(reinterpret_cast<ImTextureID>(static_cast<std::intptr_t>(view3d_->texture())),
-                 ImVec2(s, s), ImVec2(0, 1), ImVec2(1, 0));
-    view3d_rect_[0] = p.x;
-    view3d_rect_[1] = p.y;
-    view3d_rect_[2] = p.x + s;
-    view3d_rect_[3] = p.y + s;
-    ImGui::End();
-  }
-  if (help_) {
-    ImGui::SetNextWindowPos(ImVec2(20, top + 60), ImGuiCond_Appearing);
-    ImGui::Begin("Keys", &help_, ImGuiWindowFlags_AlwaysAutoResize);
-    ImGui::TextUnformatted(
-        "W / S or Up / Down   push / pull the selected instrument (faster the longer held;\n"
-        "                     Shift: fine)\n"
-        "A / D or Left/Right  turn it\n"
-        "Mouse drag on image  push/pull (up/down) and turn (left/right)\n"
-        "Tab, 1-9             select the instrument\n"
-        "Space (hold)         fluoroscopy pedal (last image hold when released)\n"
-        "C (hold)             cine pedal: records a run at 15 fps;  V review;  Ctrl+S save PNGs\n"
-        "E (hold)             inject contrast at the set flow\n"
-        "J / L, I / K         C-arm RAO / LAO, CAU / CRA;  F1-F7 standard views\n"
-        "+ / - (or wheel)     field size;  Ctrl + arrows  table pan\n"
-        "[ / ]  \\            indeflator -1 / +1 atm, deflate;  Enter (hold) deploy stent\n"
-        "P pause, B rewind 5 s, Ctrl+R restart, G 3D view, H keys, Esc end and save\n"
-        "Gamepad: left stick drive, right stick C-arm, A fluoro, B inject, X cine,\n"
-        "         LB/RB select, triggers field size, d-pad table, Back pause, Start rewind");
-    ImGui::End();
   }
 }
 
@@ -936,8 +511,6 @@ void Viewer::finish() {
   }
   if (o_.bench) std::cout << perf.dump(2) << std::endl;
 }
-
-}  // namespace
 
 void require_display() {
   const char* display = std::getenv("DISPLAY");
