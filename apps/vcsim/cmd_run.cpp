@@ -2,7 +2,8 @@
 // dt, films fluoroscopy at its frame rate into DIR/frames/*.png (and DIR/run.mp4 when ffmpeg is
 // installed), writes DIR/metrics.json, and shows a progress bar on a terminal. The input is the
 // scenario's timeline or autopilot, or a live device (`--device igtl`: an OpenIGTLink server,
-// paced to the wall clock). SIGINT and SIGTERM end a run cleanly, with its report. The engine
+// paced to the wall clock), or a command recording (`--replay FILE`: a trainer session, replayed
+// to the same state). SIGINT and SIGTERM end a run cleanly, with its report. The engine
 // does the work (src/sim: run_loop, the report; src/render: the film); this file is options.
 #include <unistd.h>
 
@@ -41,6 +42,7 @@ struct RunOptions {
   bool address_given = false;
   bool realtime = false;
   std::string force_log;  // CSV of the hand forces, every step ("" = none)
+  std::string replay;     // a command recording to replay (a trainer session), "" = none
 };
 
 // What the command line does around each step: the autopilot's log, the force log, the film and
@@ -109,6 +111,11 @@ int cmd_run(const RunOptions& o) {
   if (o.time_limit_s != 0.0)
     sc.time_limit = require_in_range(o.time_limit_s, 0.0, 3600.0, "run", "--time-limit");
   scenario_pose(sc);  // a bad C-arm setting fails before the scene is built
+  if (!o.replay.empty() && !o.device.empty())
+    throw InputError("run", "--replay", "expected either --replay or --device, not both");
+  // A recording to replay is read before the scene is built: a bad file fails at once.
+  std::optional<CommandRecording> recording;
+  if (!o.replay.empty()) recording = CommandRecording::load(o.replay);
   // A live device replaces the scenario's timeline or autopilot.
   std::unique_ptr<IgtlServer> device =
       open_device({o.device, o.port, o.port_given, o.address, o.address_given}, sc);
@@ -125,7 +132,7 @@ int cmd_run(const RunOptions& o) {
   std::vector<std::string> names;
   for (const ScenarioInstrument& si : sc.instruments) names.push_back(si.name);
   std::optional<ScriptedTimeline> timeline;
-  if (!device && !sc.timeline.empty()) {
+  if (!device && !recording && !sc.timeline.empty()) {
     timeline = ScriptedTimeline::load(sc.base_dir / sc.timeline);
     timeline->bind(names);
     if (timeline->inflates() && !has_balloon(sc))
@@ -137,22 +144,30 @@ int cmd_run(const RunOptions& o) {
   std::cerr << "run: " << sc.name << " (" << file.string() << "): building the scene\n";
   const double wall0 = now_us();
   Simulator sim(sc);
+  std::unique_ptr<RecordingReplay> replay;
+  if (recording)  // checked against the scene: instruments, step, model hash
+    replay = std::make_unique<RecordingReplay>(std::move(*recording), names, sim.dt(),
+                                               sim.model().hash(), o.replay);
   std::unique_ptr<Autopilot> pilot;
   std::unique_ptr<AutopilotInput> pilot_input;
-  if (!device && !timeline) {
+  if (!device && !timeline && !replay) {
     pilot = std::make_unique<Autopilot>(sim);
     pilot->trace = o.trace;
     pilot_input = std::make_unique<AutopilotInput>(*pilot, sim);
   }
   InputSource& input = device     ? static_cast<InputSource&>(*device)
+                       : replay   ? static_cast<InputSource&>(*replay)
                        : timeline ? static_cast<InputSource&>(*timeline)
                                   : static_cast<InputSource&>(*pilot_input);
   RunReport report;
   report.scenario_file = file.string();
-  report.input_type = device ? "igtl" : timeline ? "timeline" : "autopilot";
+  report.input_type = device ? "igtl" : replay ? "replay" : timeline ? "timeline" : "autopilot";
   report.realtime = device || o.realtime;
   report.autopilot = pilot.get();
   report.end_time = timeline ? std::min(sc.time_limit, timeline->duration()) : sc.time_limit;
+  // A recording is replayed whole, however long the session was: its steps and no more (the
+  // loop stops once the time passes half a step before the last step's end).
+  if (replay) report.end_time = (static_cast<double>(replay->recording().steps()) - 0.5) * sim.dt();
 
   ImageChainSettings chain;
   chain.dose = sc.fluoro.dose;
@@ -205,6 +220,11 @@ int cmd_run(const RunOptions& o) {
   const fs::path metrics = out / "metrics.json";
   write_run_metrics(metrics, sim, report);
   print_run_summary(std::cout, sim, report, frames_dir, metrics);
+  if (replay && replay->recording().state_hash != 0) {
+    const bool same = replay->recording().state_hash == sim.state().hash();
+    std::cout << "  replay:  " << replay->recording().steps() << " steps, state hash "
+              << (same ? "equal to the recording's" : "DIFFERENT from the recording's") << "\n";
+  }
   return run_outcome(sim, report).success ? 0 : kNotReached;
 }
 
@@ -226,6 +246,9 @@ void install(CLI::App& app, int& status) {
   cmd->add_option("--force-log", o->force_log,
                   "Write every step's hand force (N) and torque (N mm) per instrument to this CSV");
   cmd->add_flag("--realtime", o->realtime, "Pace the run to the wall clock (implied by --device)");
+  cmd->add_option("--replay", o->replay,
+                  "Replay a command recording (a trainer session's recording.json) instead of "
+                  "the scenario's input, to the same final state");
   cmd->callback([o, &status, cmd] {
     o->port_given = cmd->count("--port") > 0;
     o->address_given = cmd->count("--address") > 0;

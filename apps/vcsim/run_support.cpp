@@ -34,15 +34,16 @@ const std::atomic<bool>& StopOnSignal::flag() const {
 
 std::unique_ptr<IgtlServer> open_device(const DeviceOptions& o, const Scenario& sc) {
   if (o.device.empty()) {
-    if (o.port_given) throw InputError("run", "--port", "expected only with --device igtl");
-    if (o.address_given) throw InputError("run", "--address", "expected only with --device igtl");
+    if (o.port_given) throw InputError(o.command, "--port", "expected only with --device igtl");
+    if (o.address_given)
+      throw InputError(o.command, "--address", "expected only with --device igtl");
     return nullptr;
   }
   if (o.device != "igtl")
-    throw InputError("run", "--device", "expected igtl (OpenIGTLink), got '" + o.device + "'");
+    throw InputError(o.command, "--device", "expected igtl (OpenIGTLink), got '" + o.device + "'");
   if (o.port < 0 || o.port > 65535)
     throw InputError(
-        "run", "--port",
+        o.command, "--port",
         "expected a TCP port 0-65535 (0: any free port), got " + std::to_string(o.port));
   IgtlServerOptions io;
   io.address = o.address;
@@ -55,8 +56,8 @@ std::unique_ptr<IgtlServer> open_device(const DeviceOptions& o, const Scenario& 
     const std::string what = e.what();
     const std::string expected = what.substr(
         std::min(what.size(), e.source().size() + e.field().size() + 4));  // "src: field: "
-    if (e.field() == "port") throw InputError("run", "--port", expected);
-    if (e.field() == "address") throw InputError("run", "--address", expected);
+    if (e.field() == "port") throw InputError(o.command, "--port", expected);
+    if (e.field() == "address") throw InputError(o.command, "--address", expected);
     // instruments[i]: a scenario's instrument name the protocol cannot carry.
     throw InputError(sc.source, e.field() + ".name", expected + " (an OpenIGTLink device name)");
   }

@@ -35,6 +35,7 @@ struct DeviceOptions {
   bool port_given = false;
   std::string address = "127.0.0.1";
   bool address_given = false;
+  std::string command = "run";  // names the command line in errors ("run", "trainer")
 };
 
 // The live device named by the options, listening at once (so that a bad option or a busy port

@@ -133,6 +133,70 @@ class ScriptedTimeline : public InputSource {
   std::vector<HandFeedback> feedback_;
 };
 
+// The commands a session's physics used, step by step, exactly (docs/trainer.md "The command
+// recording"): what an interactive session (the trainer) leaves so that `vcsim run SCENARIO
+// --replay FILE` steps the same scene through the same commands to the same state, bit for bit.
+// Stored as runs of equal steps (a hand held still or moving at one speed is one run). The file
+// is JSON with every double written in 17 significant digits, which reads back to the same bits.
+class CommandRecording {
+ public:
+  struct Run {
+    std::int64_t steps = 0;  // how many consecutive steps had these commands
+    double syringe_flow = 0.0, balloon_pressure = 0.0;
+    std::uint32_t buttons = 0;
+  };
+
+  // What the recording was made of (checked by the replay against the scene it steps).
+  std::string scenario;                  // the scenario's name
+  std::string scenario_file;             // as the recording session read it
+  double dt = 0.0;                       // s, the physics step
+  std::vector<std::string> instruments;  // the scene's instruments, in its order
+  std::uint64_t model_hash = 0;          // SimModel::hash of the scene recorded
+  std::uint64_t state_hash = 0;          // SimState::hash after the last step (0: not given)
+  std::string made_by = "trainer";       // what recorded it
+
+  // Appends one step's commands (one drive per instrument, asserted). Allocates only when a new
+  // run starts and the storage is full.
+  void append(const StepCommands& c);
+  // Keeps the first `steps` steps (a rewind to a snapshot taken after that many steps).
+  void truncate(std::int64_t steps);
+  void clear() { truncate(0); }
+  std::int64_t steps() const { return total_; }
+  std::size_t num_runs() const { return runs_.size(); }
+  const Run& run(std::size_t r) const { return runs_[r]; }
+  std::span<const DriveCommand> run_drive(std::size_t r) const;
+  // The commands of step `step` (0-based, < steps()), into `out` (no allocation once sized).
+  void at(std::int64_t step, StepCommands& out) const;
+
+  void save(const std::filesystem::path& file) const;  // InputError when it cannot be written
+  std::string to_json() const;
+  // InputError naming `source` and the field for anything malformed.
+  static CommandRecording parse(std::string_view json_text, const std::string& source);
+  static CommandRecording load(const std::filesystem::path& file);
+
+ private:
+  std::vector<Run> runs_;
+  std::vector<DriveCommand> drive_;  // (run x instrument)
+  std::vector<std::int64_t> end_;    // (run) steps up to and including the run
+  std::int64_t total_ = 0;
+};
+
+// A recording replayed as an input source: the commands of the step at sim_time (its index is
+// round(sim_time / dt)), bit for bit as recorded; after the last step every hand holds still.
+class RecordingReplay : public InputSource {
+ public:
+  // Checks the recording against the scene (its instrument names in order, `dt`, and, when both
+  // are given, the model hash): InputError naming `source` and the field that differs.
+  RecordingReplay(CommandRecording recording, std::span<const std::string> instruments, double dt,
+                  std::uint64_t model_hash, const std::string& source);
+  void poll(double sim_time, StepCommands& out) override;
+  const CommandRecording& recording() const { return rec_; }
+  double duration() const { return static_cast<double>(rec_.steps()) * rec_.dt; }  // s
+
+ private:
+  CommandRecording rec_;
+};
+
 struct IgtlServerOptions {
   std::string address = "127.0.0.1";  // IPv4 address to listen on; loopback by default
   int port = 18944;                   // the OpenIGTLink default; 0 picks a free port
@@ -174,6 +238,9 @@ class IgtlServer : public InputSource {
   void poll(double sim_time, StepCommands& out) override;
   void publish(std::span<const HandFeedback> feedback) override;
   IgtlStats stats() const;
+  // Bit i set once a command for instrument i (by index of IgtlServerOptions::instruments) has
+  // been accepted: which instruments the device drives, for an app that also has a keyboard.
+  std::uint64_t commanded_mask() const;
   void stop();  // closes the connection and joins the thread; idempotent
 
  private:

@@ -409,7 +409,8 @@ class RealTimePacer {
   explicit RealTimePacer(double step_s, double max_catch_up_s = 0.25);
   void wait(double sim_time);  // s
   std::int64_t late_steps() const { return late_; }
-  double max_lag() const { return max_lag_; }  // s, the largest lag seen (before any resync)
+  double max_lag() const { return max_lag_; }    // s, the largest lag seen (before any resync)
+  double last_lag() const { return last_lag_; }  // s, the last wait's lag (0: on time)
   std::int64_t resyncs() const { return resyncs_; }
 
  private:
@@ -418,6 +419,7 @@ class RealTimePacer {
   double origin_us_ = 0.0;  // wall clock (now_us) at simulated time 0
   std::int64_t late_ = 0, resyncs_ = 0;
   double max_lag_ = 0.0;
+  double last_lag_ = 0.0;
 };
 
 struct RunLoopSettings {
@@ -468,8 +470,11 @@ struct RunReport {
   double setup_time = 0.0;   // s building the scene
   double render_time = 0.0;  // s drawing frames (on their own thread)
   int frames = 0;
+  // s of fluoroscopy (a trainer: the time its pedal was held); < 0: frames at the scenario's
+  // frame rate (a headless run films throughout).
+  double fluoroscopy_time = -1.0;
   std::string video;       // file, "" for none
-  std::string input_type;  // "autopilot", "timeline" or "igtl"
+  std::string input_type;  // "autopilot", "timeline", "igtl", "replay" or "trainer"
   bool realtime = false;
   RunLoopStats loop;
   // A live device (input_type "igtl").

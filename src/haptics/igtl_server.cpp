@@ -112,6 +112,7 @@ struct IgtlServer::Impl {
     double balloon_pressure_atm = 0.0;
     double syringe_flow_ml_s = 0.0;
     std::uint32_t buttons = 0;
+    std::uint64_t commanded = 0;  // bit i: instrument i has had a command accepted
   };
   mutable std::mutex cmd_mu;
   Latest latest;
@@ -386,6 +387,7 @@ struct IgtlServer::Impl {
     c.mode = mode;
     c.translation_mm = translation;
     c.rotation_deg = rotation;
+    if (idx < 64) latest.commanded |= std::uint64_t{1} << idx;
     n_accepted.fetch_add(1);
   }
 
@@ -577,6 +579,11 @@ void IgtlServer::publish(std::span<const HandFeedback> feedback) {
     s.feedback.add(i, std::isfinite(f.axial_force) ? f.axial_force : 0.0,
                    std::isfinite(f.torque) ? f.torque : 0.0);
   }
+}
+
+std::uint64_t IgtlServer::commanded_mask() const {
+  std::lock_guard lock(impl_->cmd_mu);
+  return impl_->latest.commanded;
 }
 
 IgtlStats IgtlServer::stats() const {

@@ -14,6 +14,7 @@ RealTimePacer::RealTimePacer(double step_s, double max_catch_up_s)
 
 void RealTimePacer::wait(double sim_time) {
   const double now = now_us();
+  last_lag_ = 0.0;
   if (!started_) {
     started_ = true;
     origin_us_ = now - sim_time * 1e6;
@@ -29,6 +30,7 @@ void RealTimePacer::wait(double sim_time) {
     return;
   }
   const double lag = (now - due) * 1e-6;
+  last_lag_ = lag;
   max_lag_ = std::max(max_lag_, lag);
   if (lag > step_) ++late_;
   if (lag > max_catch_up_) {

@@ -94,7 +94,7 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
   j["rollbacks"] = m.rollbacks;
   j["resplit_steps"] = m.resplit_steps;
   j["frames"] = r.frames;
-  j["fluoroscopy_time_s"] = r.frames * frame_dt;
+  j["fluoroscopy_time_s"] = r.fluoroscopy_time >= 0.0 ? r.fluoroscopy_time : r.frames * frame_dt;
   j["contrast_volume_ml"] = sim.state().contrast.volume * 1e6;
   j["video"] = r.video;
   char hash[24];

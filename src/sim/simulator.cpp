@@ -455,7 +455,11 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
     const InstrumentState& in = st.solver.instruments[i];
     if (in.drive.depth > 0.0) m.tip_path[i] += (in.rod.x.back() - old_tips[i]).norm();
     double f = 0.0;
-    for (const NodeContact& c : ws.contacts(static_cast<int>(i))) f = std::max(f, c.lambda_n / dt);
+    // A parked instrument was not stepped: its contact list is an earlier step's (before a
+    // restore, another run's), so it has none this step.
+    if (!in.parked)
+      for (const NodeContact& c : ws.contacts(static_cast<int>(i)))
+        f = std::max(f, c.lambda_n / dt);
     m.peak_wall_force[i] = std::max(m.peak_wall_force[i], f);
     m.peak_axial_force[i] = std::max(m.peak_axial_force[i], std::abs(in.drive.axial_force));
     m.peak_torque[i] = std::max(m.peak_torque[i], std::abs(in.drive.torque));

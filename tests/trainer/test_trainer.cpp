@@ -1,0 +1,467 @@
+// The trainer (apps/trainer, `vcsim trainer`): its controls without a window, its scripts, and
+// the app end to end under a virtual X server (ctest runs this binary under `xvfb-run -a`): a
+// scripted sequence of input events through the keyboard's path pushes a wire, presses the pedal,
+// injects and turns the C-arm; the window's screenshots are checked; the session's recording
+// replays through `vcsim run --replay` to the same state hash; the app survives a device that
+// connects and drops, a resize, a close during an injection, and bad input. Nothing asserts on
+// timing: a loaded machine (or the sanitizer build) only makes the sessions coarser.
+#include <gtest/gtest.h>
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+#include <stb_image.h>
+
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <thread>
+
+#include "../common/cli_runner.h"
+#include "../common/igtl_client.h"
+#include "controls.h"
+#include "script.h"
+
+namespace vcsim::test {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+using trainer::Controls;
+
+const bool kIgnoreSigpipe = (std::signal(SIGPIPE, SIG_IGN), true);
+
+fs::path scratch(const std::string& name) {
+  // Per process: a release and a sanitizer run, or two checkouts, may run at once.
+  std::string dir = "vcsim_trainer_";
+  dir += std::to_string(::getpid());
+  dir += "_";
+  dir += name;
+  const fs::path d = fs::temp_directory_path() / dir;
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+// A scratch folder removed when its test passes (kept to look at when it fails).
+struct Scratch {
+  fs::path d;
+  explicit Scratch(const std::string& name) : d(scratch(name)) {}
+  ~Scratch() {
+    if (!::testing::Test::HasFailure()) {
+      std::error_code ec;
+      fs::remove_all(d, ec);
+    }
+  }
+};
+
+nlohmann::json read_json(const fs::path& p) {
+  std::ifstream in(p);
+  return nlohmann::json::parse(in);
+}
+
+Scenario default_scenario() {
+  return load_scenario(fs::path(VCSIM_SCENARIOS) / "default.json");
+}
+
+std::vector<std::string> names_of(const Scenario& sc) {
+  std::vector<std::string> n;
+  for (const auto& si : sc.instruments) n.push_back(si.name);
+  return n;
+}
+
+// ---- the controls, without a window ----
+
+TEST(TrainerControls, AHeldKeyPushesTheSelectedInstrumentFasterTheLongerItIsHeld) {
+  const Scenario sc = default_scenario();
+  Controls c(names_of(sc), sc);
+  EXPECT_EQ(c.name(c.selected()), "j_wire");  // the wire leads out of its guide
+  const double t0 = 1e6;
+  c.key(GLFW_KEY_W, GLFW_PRESS, 0, t0);
+  const int s = c.selected();
+  const double v0 = c.commands().drive[static_cast<std::size_t>(s)].translation;
+  EXPECT_GT(v0, 0.0);
+  EXPECT_EQ(c.commands().seq, 1u);
+  c.update(t0 + 1.0e6);
+  const double v1 = c.commands().drive[static_cast<std::size_t>(s)].translation;
+  EXPECT_GT(v1, v0);
+  c.update(t0 + 5.0e6);
+  EXPECT_NEAR(c.commands().drive[static_cast<std::size_t>(s)].translation, 50e-3, 1e-12);
+  for (std::size_t i = 0; i < c.commands().drive.size(); ++i) {
+    if (static_cast<int>(i) != s) {
+      EXPECT_EQ(c.commands().drive[i].translation, 0.0);
+    }
+  }
+  c.key(GLFW_KEY_W, GLFW_RELEASE, 0, t0 + 6e6);
+  EXPECT_EQ(c.commands().drive[static_cast<std::size_t>(s)].translation, 0.0);
+  EXPECT_EQ(c.commands().seq, 2u);  // press and release are events; the ramp is not
+}
+
+TEST(TrainerControls, PedalsSyringeSelectionAndTheCArm) {
+  const Scenario sc = default_scenario();
+  Controls c(names_of(sc), sc);
+  c.key(GLFW_KEY_SPACE, GLFW_PRESS, 0, 0.0);
+  c.key(GLFW_KEY_E, GLFW_PRESS, 0, 0.0);
+  EXPECT_EQ(c.commands().buttons & trainer::kButtonFluoro, trainer::kButtonFluoro);
+  EXPECT_GT(c.commands().syringe_flow, 0.0);
+  c.key(GLFW_KEY_E, GLFW_RELEASE, 0, 0.0);
+  EXPECT_EQ(c.commands().syringe_flow, 0.0);
+  c.key(GLFW_KEY_1, GLFW_PRESS, 0, 0.0);
+  EXPECT_EQ(c.selected(), 0);
+  c.key(GLFW_KEY_TAB, GLFW_PRESS, 0, 0.0);
+  EXPECT_EQ(c.selected(), 1);
+  EXPECT_DOUBLE_EQ(c.primary_deg(), 40.0);
+  c.update(1e6);
+  c.key(GLFW_KEY_L, GLFW_PRESS, 0, 1e6);
+  for (int k = 1; k <= 10; ++k) c.update(1e6 + 5e4 * k);  // frames of 50 ms
+  EXPECT_NEAR(c.primary_deg(), 50.0, 1e-9);               // 20 deg/s for 0.5 s
+  c.key(GLFW_KEY_F1, GLFW_PRESS, 0, 2e6);
+  EXPECT_EQ(c.primary_deg(), 0.0);
+  EXPECT_EQ(c.secondary_deg(), 0.0);
+  const double fov = c.fov();
+  c.key(GLFW_KEY_EQUAL, GLFW_PRESS, 0, 2e6);
+  EXPECT_LT(c.fov(), fov);
+  // A gamepad's left stick drives the selected instrument.
+  trainer::GamepadState pad;
+  pad.axes[GLFW_GAMEPAD_AXIS_LEFT_Y] = -1.0f;
+  c.gamepad(pad, 3e6);
+  EXPECT_NEAR(c.commands().drive[1].translation, 50e-3, 1e-12);
+  c.gamepad_lost(3.1e6);
+  EXPECT_EQ(c.commands().drive[1].translation, 0.0);
+  // The window losing the keyboard lets every key go: nothing keeps moving, the beam goes off.
+  c.key(GLFW_KEY_W, GLFW_PRESS, 0, 4e6);
+  c.key(GLFW_KEY_SPACE, GLFW_PRESS, 0, 4e6);
+  c.release_all(4.1e6);
+  EXPECT_EQ(c.commands().drive[1].translation, 0.0);
+  EXPECT_EQ(c.commands().buttons, 0u);
+}
+
+// What a rewind and a restart rely on: a state restored after other steps (here, the wire pushed
+// in) steps on exactly as a fresh simulator would, also for instruments parked outside (whose
+// contact lists the solver does not refresh).
+TEST(TrainerPhysics, ARestoredStateStepsOnAsAFreshOne) {
+  Scenario sc = default_scenario();
+  sc.autopilot.clear();
+  Simulator fresh(sc), used(fresh.shared_model());
+  const SimState initial = used.snapshot();
+  StepCommands c;
+  c.reset(static_cast<std::size_t>(fresh.num_instruments()));
+  c.drive[1].translation = 0.02;
+  for (int k = 0; k < 600; ++k) used.step(c);
+  used.restore(initial);
+  c.drive[1].translation = -0.01;  // pulling at the sheath: parked
+  for (int k = 0; k < 50; ++k) {
+    fresh.step(c);
+    used.step(c);
+    ASSERT_EQ(fresh.state().hash(), used.state().hash()) << "step " << k;
+  }
+}
+
+TEST(TrainerScript, ABadScriptIsAnErrorNamingTheField) {
+  EXPECT_EQ(
+      trainer::parse_script(R"({"events": [{"t_s": 1, "key": "W", "action": "press"}]})", "s.json")
+          .size(),
+      1u);
+  try {
+    trainer::parse_script(R"({"events": [{"t_s": 1, "key": "NOPE", "action": "press"}]})",
+                          "s.json");
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.field(), "events[0].key");
+  }
+  EXPECT_THROW(
+      trainer::parse_script(R"({"events": [{"t_s": 1, "key": "W", "action": "hold"}]})", "s.json"),
+      InputError);
+}
+
+// ---- the app under a virtual X server ----
+
+struct Image {
+  int w = 0, h = 0;
+  std::vector<unsigned char> rgb;
+  bool load(const fs::path& p) {
+    int n = 0;
+    unsigned char* d = stbi_load(p.string().c_str(), &w, &h, &n, 3);
+    if (!d) return false;
+    rgb.assign(d, d + static_cast<std::size_t>(w) * h * 3);
+    stbi_image_free(d);
+    return true;
+  }
+  const unsigned char* at(int x, int y) const {
+    return rgb.data() + (static_cast<std::size_t>(y) * w + x) * 3;
+  }
+};
+
+// Means of 16 x 16 blocks of the middle of the fluoroscopy panel (grey), which averages the
+// quantum noise away.
+std::vector<double> block_means(const Image& im, const nlohmann::json& overlay) {
+  const int x0 = overlay["fluoro_panel"][0].get<int>(), y0 = overlay["fluoro_panel"][1].get<int>();
+  const int side = overlay["fluoro_panel"][2].get<int>();
+  std::vector<double> m;
+  for (int by = side / 4; by + 16 <= 3 * side / 4; by += 16)
+    for (int bx = side / 4; bx + 16 <= 3 * side / 4; bx += 16) {
+      double s = 0;
+      for (int y = 0; y < 16; ++y)
+        for (int x = 0; x < 16; ++x) s += im.at(x0 + bx + x, y0 + by + y)[0];
+      m.push_back(s / 256.0);
+    }
+  return m;
+}
+
+// Amber pixels (the overlay's fluoroscopy clock) in the top right corner of the panel.
+std::vector<int> amber_pixels(const Image& im, const nlohmann::json& overlay) {
+  const int x0 = overlay["fluoro_panel"][0].get<int>(), y0 = overlay["fluoro_panel"][1].get<int>();
+  const int side = overlay["fluoro_panel"][2].get<int>();
+  std::vector<int> px;
+  for (int y = y0 + 4; y < y0 + 28; ++y)
+    for (int x = x0 + side - 140; x < x0 + side - 4; ++x) {
+      const unsigned char* p = im.at(x, y);
+      if (p[0] > 180 && p[2] < 140 && p[0] > p[2] + 80) px.push_back((y - y0) * 10000 + (x - x0));
+    }
+  return px;
+}
+
+std::string replay_hash(const fs::path& dir, const std::string& scenario = "default") {
+  const fs::path out = dir / "replay";
+  const CliResult r = run_cli("run " + scenario + " --replay " + (dir / "recording.json").string() +
+                              " --no-frames --quiet --out " + out.string());
+  EXPECT_TRUE(r.status == 0 || r.status == 3) << r.err;
+  EXPECT_NE(r.out.find("state hash equal to the recording's"), std::string::npos) << r.out;
+  if (!fs::exists(out / "metrics.json")) return "missing";
+  return read_json(out / "metrics.json")["state_hash"].get<std::string>();
+}
+
+TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameState) {
+  const Scratch scratch_dir("session");
+  const fs::path& d = scratch_dir.d;
+  // The pedal, a push of the J wire, an injection, then the C-arm from LAO 40 CAU 30 to AP.
+  std::ofstream(d / "s.json") << R"({"events": [
+    {"t_s": 0.3, "key": "SPACE", "action": "press"},
+    {"t_s": 0.4, "key": "W", "action": "press"},
+    {"t_s": 1.6, "key": "W", "action": "release"},
+    {"t_s": 1.7, "key": "E", "action": "press"},
+    {"t_s": 2.2, "screenshot": "lao.png"},
+    {"t_s": 2.6, "key": "E", "action": "release"},
+    {"t_s": 2.7, "key": "F1", "action": "press"},
+    {"t_s": 2.8, "key": "F1", "action": "release"},
+    {"t_s": 3.4, "screenshot": "ap.png"},
+    {"t_s": 3.5, "key": "SPACE", "action": "release"},
+    {"t_s": 3.9, "screenshot": "held.png"},
+    {"t_s": 4.0, "close": true}]})";
+  const CliResult r =
+      run_cli("trainer --script " + (d / "s.json").string() + " --out " + d.string());
+  ASSERT_EQ(r.status, 0) << r.err;
+  for (const char* f : {"lao.png", "ap.png", "held.png", "recording.json", "metrics.json"})
+    ASSERT_TRUE(fs::exists(d / f)) << f;
+  const nlohmann::json lao = read_json(d / "lao.json"), ap = read_json(d / "ap.json"),
+                       held = read_json(d / "held.json");
+  Image a, b, c;
+  ASSERT_TRUE(a.load(d / "lao.png"));
+  ASSERT_TRUE(b.load(d / "ap.png"));
+  ASSERT_TRUE(c.load(d / "held.png"));
+  EXPECT_EQ(a.w, 1280);
+  EXPECT_EQ(a.h, 800);
+  // The overlay's values, as it drew them: angles, the fluoroscopy clock running, the wire in.
+  EXPECT_EQ(lao["angles"].get<std::string>().substr(0, 3), "LAO");
+  EXPECT_EQ(ap["primary_deg"].get<double>(), 0.0);
+  EXPECT_GT(lao["fluoroscopy_time_s"].get<double>(), 0.0);
+  EXPECT_GT(ap["fluoroscopy_time_s"].get<double>(), lao["fluoroscopy_time_s"].get<double>());
+  EXPECT_TRUE(held["image_held"].get<bool>());
+  EXPECT_GT(ap["contrast_used_ml"].get<double>(), 0.0);
+  EXPECT_GT(ap["instruments"][1]["depth_mm"].get<double>(), 1.0);
+  // The fluoroscopy panel is not blank, and the C-arm's turn changed it.
+  const std::vector<double> ma = block_means(a, lao), mb = block_means(b, ap);
+  ASSERT_EQ(ma.size(), mb.size());
+  ASSERT_FALSE(ma.empty());
+  double mean = 0, var = 0, diff = 0;
+  for (double v : ma) mean += v / static_cast<double>(ma.size());
+  for (double v : ma) var += (v - mean) * (v - mean) / static_cast<double>(ma.size());
+  for (std::size_t k = 0; k < ma.size(); ++k)
+    diff += std::abs(ma[k] - mb[k]) / static_cast<double>(ma.size());
+  EXPECT_GT(mean, 15.0);
+  EXPECT_LT(mean, 240.0);
+  EXPECT_GT(std::sqrt(var), 3.0) << "a flat panel";
+  EXPECT_GT(diff, 4.0) << "LAO 40 CAU 30 and AP look the same";
+  // The overlay's fluoroscopy clock is drawn (amber text) and reads differently in the two.
+  const std::vector<int> ta = amber_pixels(a, lao), tb = amber_pixels(b, ap);
+  EXPECT_GT(ta.size(), 20u);
+  EXPECT_GT(tb.size(), 20u);
+  EXPECT_NE(ta, tb);
+  // The session's metrics and its replay: the same final state.
+  const nlohmann::json m = read_json(d / "metrics.json");
+  EXPECT_EQ(m["input"]["type"], "trainer");
+  EXPECT_GT(m["fluoroscopy_time_s"].get<double>(), 0.0);
+  EXPECT_GT(m["contrast_volume_ml"].get<double>(), 0.0);
+  EXPECT_EQ(replay_hash(d), m["state_hash"].get<std::string>());
+}
+
+TEST(TrainerApp, CinePauseResizeRewindAndTheEducatorsViewKeepTheSessionReplayable) {
+  const Scratch scratch_dir("resize");
+  const fs::path& d = scratch_dir.d;
+  std::ofstream(d / "s.json") << R"({"events": [
+    {"t_s": 0.2, "key": "C", "action": "press"},
+    {"t_s": 1.0, "key": "C", "action": "release"},
+    {"t_s": 1.1, "key": "V", "action": "press"},
+    {"t_s": 1.15, "key": "V", "action": "release"},
+    {"t_s": 1.3, "screenshot": "review.png"},
+    {"t_s": 1.35, "key": "P", "action": "press"},
+    {"t_s": 1.4, "key": "P", "action": "release"},
+    {"t_s": 1.6, "screenshot": "paused.png"},
+    {"t_s": 1.7, "key": "P", "action": "press"},
+    {"t_s": 1.75, "key": "P", "action": "release"},
+    {"t_s": 1.8, "key": "SPACE", "action": "press"},
+    {"t_s": 1.9, "key": "W", "action": "press"},
+    {"t_s": 3.0, "key": "W", "action": "release"},
+    {"t_s": 3.1, "resize": [900, 600]},
+    {"t_s": 3.2, "key": "G", "action": "press"},
+    {"t_s": 3.25, "key": "G", "action": "release"},
+    {"t_s": 3.7, "screenshot": "small.png"},
+    {"t_s": 3.8, "key": "B", "action": "press"},
+    {"t_s": 3.85, "key": "B", "action": "release"},
+    {"t_s": 4.0, "key": "S", "action": "press"},
+    {"t_s": 4.4, "key": "S", "action": "release"},
+    {"t_s": 4.5, "key": "S", "action": "press", "mods": ["ctrl"]},
+    {"t_s": 4.55, "key": "S", "action": "release", "mods": ["ctrl"]},
+    {"t_s": 4.6, "resize": [1400, 900]},
+    {"t_s": 5.1, "screenshot": "large.png"},
+    {"t_s": 5.2, "close": true}]})";
+  const CliResult r = run_cli("trainer --script " + (d / "s.json").string() + " --out " +
+                              d.string() + " --width 1024 --height 700");
+  ASSERT_EQ(r.status, 0) << r.err;
+  // A cine run recorded while C was held, reviewed in the window, saved as PNGs.
+  const nlohmann::json review = read_json(d / "review.json");
+  EXPECT_TRUE(review["review"].get<bool>());
+  EXPECT_GE(review["cine_frames"].get<int>(), 2);
+  EXPECT_TRUE(fs::exists(d / "cine" / "run_01" / "frame_00000.png"));
+  EXPECT_TRUE(read_json(d / "paused.json")["paused"].get<bool>());
+  Image s, l;
+  ASSERT_TRUE(s.load(d / "small.png"));
+  ASSERT_TRUE(l.load(d / "large.png"));
+  EXPECT_EQ(s.w, 900);
+  EXPECT_EQ(s.h, 600);
+  EXPECT_EQ(l.w, 1400);
+  EXPECT_EQ(l.h, 900);
+  // The panel follows the window.
+  EXPECT_LT(read_json(d / "small.json")["fluoro_panel"][2].get<double>(),
+            read_json(d / "large.json")["fluoro_panel"][2].get<double>());
+  const nlohmann::json m = read_json(d / "metrics.json");
+  EXPECT_EQ(m["trainer"]["rewinds"].get<int>(), 1);
+  EXPECT_EQ(m["trainer"]["cine_runs"].get<int>(), 1);
+  EXPECT_EQ(replay_hash(d), m["state_hash"].get<std::string>());
+}
+
+TEST(TrainerApp, ClosingDuringAnInjectionSavesTheSession) {
+  const Scratch scratch_dir("close");
+  const fs::path& d = scratch_dir.d;
+  std::ofstream(d / "s.json") << R"({"events": [
+    {"t_s": 0.2, "key": "E", "action": "press"},
+    {"t_s": 1.5, "close": true}]})";
+  const CliResult r =
+      run_cli("trainer --script " + (d / "s.json").string() + " --out " + d.string());
+  ASSERT_EQ(r.status, 0) << r.err;
+  const nlohmann::json m = read_json(d / "metrics.json");
+  EXPECT_GT(m["contrast_volume_ml"].get<double>(), 0.0);
+  EXPECT_EQ(replay_hash(d), m["state_hash"].get<std::string>());
+}
+
+// Waits for "listening on 127.0.0.1:PORT" in the trainer's stderr; 0 when it never comes.
+int wait_for_port(CliProcess& p, const fs::path& err) {
+  const auto end = std::chrono::steady_clock::now() + 120s;
+  const std::string key = "listening on 127.0.0.1:";
+  while (std::chrono::steady_clock::now() < end) {
+    const std::string text = slurp(err);
+    const auto at = text.find(key);
+    if (at != std::string::npos && text.find('\n', at) != std::string::npos)
+      return std::atoi(text.c_str() + at + key.size());
+    if (p.exited()) return 0;
+    std::this_thread::sleep_for(20ms);
+  }
+  return 0;
+}
+
+TEST(TrainerApp, ADeviceConnectsDropsAndReconnectsBesideTheKeyboard) {
+  const Scratch scratch_dir("device");
+  const fs::path& d = scratch_dir.d;
+  std::ofstream(d / "s.json") << R"({"events": [
+    {"t_s": 0.2, "key": "W", "action": "press"},
+    {"t_s": 1.0, "key": "W", "action": "release"},
+    {"t_s": 60, "close": true}]})";
+  CliProcess p({"trainer", "--script", (d / "s.json").string(), "--out", d.string(), "--device",
+                "igtl", "--port", "0"},
+               d / "out.txt", d / "err.txt");
+  ASSERT_TRUE(p.started());
+  const int port = wait_for_port(p, d / "err.txt");
+  ASSERT_GT(port, 0) << slurp(d / "err.txt");
+  // The server listens before the window opens; the physics starts once it is ready (a slow
+  // machine takes a while): commands sent before would be overtaken by the disconnect's.
+  const auto ready_by = std::chrono::steady_clock::now() + 120s;
+  while (slurp(d / "err.txt").find(" ready in ") == std::string::npos && !p.exited() &&
+         std::chrono::steady_clock::now() < ready_by)
+    std::this_thread::sleep_for(20ms);
+  {
+    IgtlClient c;
+    ASSERT_TRUE(c.connect(port, 10000ms));
+    ASSERT_TRUE(c.send_transform("catheter", 20.0, 0.0));  // the catheter, by position
+    std::vector<double> f;
+    EXPECT_TRUE(c.read_sensor("force_catheter", f, 10000ms));
+    c.close();  // dropped without a word
+  }
+  std::this_thread::sleep_for(300ms);
+  {
+    IgtlClient c;
+    ASSERT_TRUE(c.connect(port, 10000ms));
+    ASSERT_TRUE(c.send_sensor("vel_catheter", {10.0, 0.0}));
+    std::this_thread::sleep_for(500ms);
+    c.close();
+  }
+  std::this_thread::sleep_for(300ms);
+  p.signal(SIGTERM);  // ends the session as a close does
+  ASSERT_TRUE(p.wait(120s));
+  ASSERT_EQ(p.status(), 0) << slurp(d / "err.txt");
+  const nlohmann::json m = read_json(d / "metrics.json");
+  EXPECT_EQ(m["trainer"]["device"]["connections"].get<int>(), 2);
+  EXPECT_GE(m["trainer"]["device"]["disconnections"].get<int>(), 2);
+  EXPECT_GT(m["instruments"][0]["inserted_mm"].get<double>(), 1.0);  // the device's catheter
+  EXPECT_GT(m["instruments"][1]["inserted_mm"].get<double>(), 1.0);  // the keyboard's wire
+  EXPECT_EQ(replay_hash(d), m["state_hash"].get<std::string>());
+}
+
+TEST(TrainerApp, BadInputIsAClearErrorAndNothingIsLost) {
+  const Scratch scratch_dir("bad");
+  const fs::path& d = scratch_dir.d;
+  // An earlier session's files in the output folder stay as they were.
+  fs::create_directories(d / "out");
+  std::ofstream(d / "out" / "recording.json") << "earlier";
+  std::ofstream(d / "bad.json") << R"({"format": "vcsim-scenario", "version": 1, "name": "bad",
+    "dt_ms": 0.5, "instruments": [{"name": "wire", "catalogue": "no-such-wire"}],
+    "input": {"type": "autopilot"}})";
+  CliResult r = run_cli("trainer " + (d / "bad.json").string() + " --out " + (d / "out").string());
+  EXPECT_EQ(r.status, 2);
+  EXPECT_NE(r.err.find("bad.json"), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  EXPECT_EQ(slurp(d / "out" / "recording.json"), "earlier");
+  std::ofstream(d / "s.json") << R"({"events": [{"t_s": 1, "key": "NOPE", "action": "press"}]})";
+  r = run_cli("trainer --script " + (d / "s.json").string() + " --out " + (d / "out").string());
+  EXPECT_EQ(r.status, 2);
+  EXPECT_NE(r.err.find("events[0].key"), std::string::npos) << r.err;
+  EXPECT_EQ(slurp(d / "out" / "recording.json"), "earlier");
+  // No display: one line naming xvfb-run.
+  r = run_cli("trainer --out " + (d / "out").string(), "env -u DISPLAY -u WAYLAND_DISPLAY ");
+  EXPECT_EQ(r.status, 2);
+  EXPECT_NE(r.err.find("xvfb-run"), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  // A recording of another scene is refused by the replay.
+  std::ofstream(d / "rec.json") << R"({"format": "vcsim-recording", "version": 1,
+    "dt_s": 0.0005, "instruments": ["wire"], "model_hash": "0", "state_hash": "0", "steps": 1,
+    "runs": [[1, 0, 0, 0, "v", 0, 0]]})";
+  r = run_cli("run default --no-frames --replay " + (d / "rec.json").string() + " --out " +
+              (d / "replay").string());
+  EXPECT_EQ(r.status, 2);
+  EXPECT_NE(r.err.find("instruments"), std::string::npos) << r.err;
+}
+
+}  // namespace
+}  // namespace vcsim::test
