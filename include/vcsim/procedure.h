@@ -83,8 +83,15 @@ struct BalloonState {
   // where it last did.
   TreeLocation centre, last;
   std::vector<double> radius;  // (balloon nodes) its radius at each node now (m)
-  // (balloon nodes) the lumen's radius that stops it at each node (m; 1 where not fitted)
+  // (balloon nodes) the lumen's radius that stops it at each node (m; 1 where not fitted), and
+  // where and when it was measured on the wall (queried again when the node has moved on, the
+  // wall changed shape, or kRefit has passed)
   std::vector<double> lumen;
+  std::vector<double> lumen_s;
+  double lumen_time = -1.0;
+  std::uint64_t lumen_epoch = 0;
+  static constexpr double kRefit = 10e-3;      // s
+  static constexpr double kRefitMove = 0.1e-3;  // m along the vessel
   // (balloon nodes) arc length of each node along last.segment, when last inflated there
   std::vector<double> s;
   // The largest free diameter it reached in a vessel, over the reference diameter there.
@@ -124,6 +131,12 @@ struct ProcedureState {
   std::vector<LesionOpening> pushed;
   // (lesion) how far crossing instruments have compressed each lesion (plastic)
   std::vector<LesionOpening> crossed;
+  // (lesion) the opening the wall shows: `opening` once it has moved on by more than
+  // kWallOpeningStep at some sample (a held balloon's opening trembles by less each step, and
+  // each change re-morphs the lumen)
+  std::vector<LesionOpening> wall_opening;
+  static constexpr double kWallOpeningStep = 2e-3;
+  std::uint64_t wall_epoch = 0;  // counts the changes of the wall's shape (openings, stents)
   std::vector<ProcedureEvent> events;  // in order (capacity reserved: rare)
   bool refusing = false;  // a pressure with no balloon in the patient was refused (logged once)
 

@@ -298,7 +298,7 @@ class SimWorkspace {
 // Wall-clock time of a sim step's stages (microseconds).
 struct SimStepProfile {
   StepProfile instruments;  // the solver's stages, summed over the fine steps
-  double procedure = 0.0;   // balloons, lesions, the wall brought to them (before the solver)
+  double procedure = 0.0;   // balloons, lesions, the wall brought to them; stents after the solver
   double solver = 0.0;      // solver_step: sub-steps, wall motion, instruments
   double contrast = 0.0;    // injection point and transport
   double metrics = 0.0;     // tip paths, peak forces
@@ -588,7 +588,11 @@ class Autopilot {
   double aim_distance_ = 0.0, aim_angle_ = 0.0;  // of the leader's tip to its aim (trace)
   double pressure_ = 0.0;      // Pa commanded to the indeflator
   double placed_since_ = -1.0;  // s: the markers within tolerance of the target since then
+  int placed_ = -1;  // the instrument the last place phase placed (watched while inflating)
+  double place_goal_ = 0.0;  // m along the place route: the lesion's middle
+  TreeLocation place_target_;  // the lesion's middle
   void place(const SimModel& model, const SimState& state, const AutopilotPhase& ph);
+  double markers_remaining(const SimModel& model, const SimState& state, int instrument);
 };
 
 // The autopilot as an input source of a simulator: it reads the simulator's state as a trainee

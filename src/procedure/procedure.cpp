@@ -40,18 +40,6 @@ double ring_from_distal(const BalloonModel& bm, std::size_t k, std::size_t n) {
   return 0.5 * (bm.spec.length - ls) + ls * static_cast<double>(k) / static_cast<double>(n - 1);
 }
 
-// The value of a per-ring array (ring_from_distal's grid) `fd` m from the balloon's distal end
-// (clamped at the stent's ends).
-double ring_value(const BalloonModel& bm, std::span<const double> v, double fd) {
-  const std::size_t n = v.size();
-  const double step = bm.stent->length / static_cast<double>(n - 1);
-  const double u = std::clamp((fd - ring_from_distal(bm, 0, n)) / step, 0.0,
-                              static_cast<double>(n - 1));
-  const auto i = std::min(static_cast<std::size_t>(u), n - 2);
-  const double f = u - static_cast<double>(i);
-  return v[i] + f * (v[i + 1] - v[i]);
-}
-
 // Linear interpolation of ys over xs at x, xs increasing or decreasing (clamped at the ends).
 double interpolate(std::span<const double> xs, std::span<const double> ys, double x) {
   const std::size_t n = xs.size();
@@ -173,6 +161,7 @@ ProcedureState make_procedure_state(const ProcedureModel& m, SolverState& solver
     s.balloons[b].radius.assign(bm.nodes(), bm.shaft_radius);
     s.balloons[b].s.assign(bm.nodes(), 0.0);
     s.balloons[b].lumen.assign(bm.nodes(), 1.0);
+    s.balloons[b].lumen_s.assign(bm.nodes(), -1.0);
     s.balloons[b].centre.segment = -1;
     if (bm.stent) {
       const int rings = std::max(2, static_cast<int>(std::ceil(bm.stent->length / 0.5e-3)) + 1);
@@ -198,6 +187,7 @@ ProcedureState make_procedure_state(const ProcedureModel& m, SolverState& solver
   s.stent_hold.assign(m.lesions.size(), zero);
   s.pushed.assign(m.lesions.size(), zero);
   s.crossed.assign(m.lesions.size(), zero);
+  s.wall_opening.assign(m.lesions.size(), zero);
   s.events.reserve(64);
   return s;
 }
@@ -212,6 +202,9 @@ void ProcedureState::hash_into(StateHasher& h) const {
     h.add_value(b.over_expanded);
     h.add(b.radius);
     h.add(b.lumen);
+    h.add(b.lumen_s);
+    h.add_value(b.lumen_time);
+    h.add_value(b.lumen_epoch);
     h.add(b.s);
   }
   for (const StentState& s : stents) {
@@ -227,6 +220,8 @@ void ProcedureState::hash_into(StateHasher& h) const {
   hash_opening(h, stent_hold);
   hash_opening(h, pushed);
   hash_opening(h, crossed);
+  hash_opening(h, wall_opening);
+  h.add_value(wall_epoch);
   for (const ProcedureEvent& e : events) {
     h.add_value(static_cast<int>(e.kind));
     h.add_value(e.time);
@@ -419,8 +414,36 @@ void procedure_before_step(const ProcedureModel& m, const SolverModel& sm, const
       mx[u] = std::max(mx[u], pu[u]);
       o[u] = std::max({pu[u], keep * mx[u], ho[u], cr[u]});
     }
+    std::vector<double>& w = ps.wall_opening[k].t;
+    bool moved = false;
+    for (std::size_t u = 0; u < o.size() && !moved; ++u)
+      moved = std::abs(o[u] - w[u]) > ProcedureState::kWallOpeningStep;
+    if (moved) {
+      w = o;
+      ++ps.wall_epoch;
+    }
   }
 }
+
+namespace {
+
+// The distance from a point on the vessel's axis to the nearest wall point, as far as it matters
+// to a balloon of free radius `free` (beyond it: `free` itself is the answer). The probe starts
+// just past the smaller of `free` and the model's section radius `section`, where the wall is
+// expected, so that it overlaps only the band of triangles near the nearest point.
+double fit_lumen(VesselWall& wall, const Vec3& axis, double free, double section) {
+  constexpr double kProbe = 0.05e-3;  // m past the expected wall
+  for (double probe : {std::min(free, section) + kProbe, free + kProbe}) {
+    SphereContact hit;
+    wall.query_spheres(std::span<const Vec3>(&axis, 1), std::span<const double>(&probe, 1),
+                       std::span<SphereContact>(&hit, 1));
+    if (hit.touching && !hit.centre_outside) return hit.distance;
+    if (probe >= free) break;
+  }
+  return free + kProbe;
+}
+
+}  // namespace
 
 void procedure_fit(const ProcedureModel& m, const SolverModel& sm, const VesselTree& tree,
                    const CardiacMotion* motion, VesselWall& wall, double t1, ProcedureState& ps,
@@ -449,16 +472,17 @@ void procedure_fit(const ProcedureModel& m, const SolverModel& sm, const VesselT
       const Vec3 axis =
           motion ? Vec3(sec.centre + motion->displacement(sec.centre, t1)) : sec.centre;
       // The lumen's radius there on the wall itself: the nearest wall point from the axis
-      // (iterative collision detection, VCSim3's fit, by one exact query).
-      double lumen = sec.radius;
-      const double probe = std::max(free, sec.radius) + 1e-3;
-      SphereContact hit;
-      wall.query_spheres(std::span<const Vec3>(&axis, 1), std::span<const double>(&probe, 1),
-                         std::span<SphereContact>(&hit, 1));
-      if (hit.touching && !hit.centre_outside) lumen = hit.distance;
+      // (iterative collision detection, VCSim3's fit, by exact queries), measured again when
+      // the node has moved on along the vessel, the wall changed shape or kRefit has passed.
+      const bool fresh = st.lumen_epoch == ps.wall_epoch && t1 - st.lumen_time < BalloonState::kRefit &&
+                         std::abs(arc - st.lumen_s[e]) < BalloonState::kRefitMove;
+      if (!fresh) {
+        st.lumen[e] = fit_lumen(wall, axis, free, sec.radius);
+        st.lumen_s[e] = arc;
+      }
+      const double lumen = st.lumen[e];
       const double r = std::min(free, lumen);
       st.radius[e] = r;
-      st.lumen[e] = lumen;
       h.first = std::min(h.first, node);
       h.last = std::max(h.last, node);
       h.axis[node] = axis;
@@ -467,6 +491,10 @@ void procedure_fit(const ProcedureModel& m, const SolverModel& sm, const VesselT
       h.play[node] = std::max(0.0, lumen - r);
       // Pressed on the wall all round: p times the balloon's surface at the node.
       h.wall_load[node] = free >= lumen ? st.pressure * 2.0 * kPi * r * bm.node_length[j] : 0.0;
+    }
+    if (st.lumen_epoch != ps.wall_epoch || t1 - st.lumen_time >= BalloonState::kRefit) {
+      st.lumen_epoch = ps.wall_epoch;
+      st.lumen_time = t1;
     }
     // A stent crimped on it expands with it, each ring to the balloon's profile where it sits
     // (centred on the working length) or the lumen there, whichever is smaller.
@@ -497,21 +525,25 @@ void procedure_after_step(const ProcedureModel& m, const SolverModel& sm, const 
       // (Passing kDeflated on the way up while inflating is not a release.)
       if (st.pressure >= kDeflated || st.max_pressure < 2.0 * kDeflated || most < 1.2 * crimp)
         continue;
-      // Where the balloon last lay inflated in the vessel: the stent stays there, centred on it.
+      // Where the balloon last lay inflated in the vessel: each ring stays where it sat on the
+      // balloon (its place from the balloon's distal end mapped through the nodes' arc lengths).
       if (st.last.segment < 0) continue;
       stent.phase = StentState::Phase::kDeployed;
+      ++ps.wall_epoch;
       stent.segment = st.last.segment;
       stent.deployed_at = time;
-      const double len = bm.stent->length;
-      const auto rings = static_cast<double>(stent.ring_s.size() - 1);
+      const std::size_t n = stent.ring_s.size();
       const double seg_len = segment_length(tree.segments[stent.segment]);
       const double recoil = 1.0 - bm.stent->acute_recoil;
-      for (std::size_t k = 0; k < stent.ring_s.size(); ++k) {
-        const double s = st.last.distance - 0.5 * len + len * static_cast<double>(k) / rings;
-        stent.ring_s[k] = std::clamp(s, 0.0, seg_len);
-        // The ring's place on the balloon (from its distal end) at this arc length.
-        const double fd = interpolate(st.s, bm.from_distal, s);
-        stent.ring_radius[k] = recoil * ring_value(bm, stent.expanded, fd);
+      for (std::size_t k = 0; k < n; ++k) {
+        const double fd = ring_from_distal(bm, k, n);
+        stent.ring_s[k] = std::clamp(interpolate(bm.from_distal, st.s, fd), 0.0, seg_len);
+        stent.ring_radius[k] = recoil * stent.expanded[k];
+      }
+      // Along the segment (k = 0 was the distal end: last for a balloon pointing downstream).
+      if (stent.ring_s.front() > stent.ring_s.back()) {
+        std::reverse(stent.ring_s.begin(), stent.ring_s.end());
+        std::reverse(stent.ring_radius.begin(), stent.ring_radius.end());
       }
       hold_lesions(m, tree, stent, ps);
       add_event(ps, ProcedureEvent::Kind::kStentDeployed, time, static_cast<int>(b),
@@ -535,6 +567,7 @@ void procedure_after_step(const ProcedureModel& m, const SolverModel& sm, const 
         }
       }
       if (!grips) continue;
+      ++ps.wall_epoch;
       hold_lesions(m, tree, stent, ps);
       // Carried: the balloon's middle moved along the vessel this step.
       const BalloonModel& gm = m.balloons[g];

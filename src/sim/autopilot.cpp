@@ -18,6 +18,10 @@ namespace {
 constexpr double kSpacing = 1e-3;       // m between route points
 constexpr double kProgressStep = 1e-3;  // m of progress that counts as moving on
 constexpr double kPlaceApproach = 70e-3;  // m of route before a lesion: out of the guide (place)
+constexpr double kPlacedTime = 0.5;       // s within tolerance before a place is done
+constexpr double kPlaceBeyond = 20e-3;    // m the place route runs on past the lesion's middle
+constexpr double kPositionCheck = 4.0 * kAtm;  // Pa: markers watched while inflating below it
+constexpr double kNudgeSpeed = 2e-3;           // m/s: the hand's correction then
 constexpr double kLookAhead = 12e-3;    // m along the route the tip is aimed at
 constexpr double kBranchAhead = 40e-3;
 constexpr double kHoldLost = 1.5;       // s out of reach before a held tip counts as fallen out
@@ -92,6 +96,7 @@ void Autopilot::start_phase(const SimModel& md, const SimState& st) {
   const AutopilotPhase& ph = plan_[phase_];
   const Scenario& sc = md.scenario;
   leader_ = ph.instrument.empty() ? -1 : sc.find_instrument(ph.instrument);
+  if (leader_ >= 0 && leader_ == placed_) placed_ = -1;  // moved on: no longer watched
   // An instrument this phase moves is no longer held where an earlier phase left it.
   std::erase_if(holds_, [&](const Hold& h) {
     return h.instrument == leader_ || h.instrument == sc.find_instrument(ph.follower);
@@ -104,12 +109,17 @@ void Autopilot::start_phase(const SimModel& md, const SimState& st) {
     // The route to the lesion's middle, which the markers' midpoint is brought to.
     const VesselTree& tree = md.tree;
     const LesionModel& lm = md.procedure.lesions[static_cast<std::size_t>(ph.lesion)];
-    const TreeLocation goal{tree.lesions[static_cast<std::size_t>(lm.lesion)].segment,
-                            0.5 * (lm.span.s0 + lm.span.s1)};
-    route_ = route(tree, tree.access, goal, kSpacing);
+    // The route runs on past the lesion's middle (so that markers past it read a negative
+    // distance to go, and are pulled back), as far as the segment allows.
+    const int seg = tree.lesions[static_cast<std::size_t>(lm.lesion)].segment;
+    const double mid = 0.5 * (lm.span.s0 + lm.span.s1);
+    const double beyond = std::min(mid + kPlaceBeyond, segment_length(tree.segments[seg]));
+    route_ = route(tree, tree.access, TreeLocation{seg, beyond}, kSpacing);
     route_s_.assign(route_.size(), 0.0);
     for (std::size_t k = 1; k < route_.size(); ++k)
       route_s_[k] = route_s_[k - 1] + (route_[k] - route_[k - 1]).norm();
+    place_goal_ = route_s_.back() - (beyond - mid);
+    place_target_ = TreeLocation{seg, mid};
     progress_ = best_progress_ = 0.0;
     best_time_ = st.time();
     depth_at_best_ = -1.0;
@@ -278,12 +288,10 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
   if (follower_ >= 0) depth_[follower_] = std::max(0.0, depth_[L] - ph.follow_gap);
 }
 
-// The markers' midpoint of a balloon or stent catheter (the balloon's middle as fluoroscopy shows
-// it), at rest, brought along the route to the lesion's middle: advanced (slower near it), pulled
-// back if past it; placed when within tolerance for 0.2 s.
-void Autopilot::place(const SimModel& md, const SimState& st, const AutopilotPhase& ph) {
-  const int L = leader_;
-  const double dt = md.dt();
+// How far the markers' midpoint of instrument L (a balloon or stent catheter: the balloon's
+// middle as fluoroscopy shows it), at rest, still has to go along the route to the lesion's
+// middle (m; negative when past it).
+double Autopilot::markers_remaining(const SimModel& md, const SimState& st, int L) {
   const RodModel& rod = md.solver.instruments[static_cast<std::size_t>(L)].rod();
   const std::vector<double>& markers = md.specs[static_cast<std::size_t>(L)].radiopacity.markers;
   double from_tip = 0.0;
@@ -291,21 +299,37 @@ void Autopilot::place(const SimModel& md, const SimState& st, const AutopilotPha
   const double s_mid = rod.length - from_tip;
   int i = rod.n - 1;
   while (i > 0 && rod.node_s[i] > s_mid) --i;
-  const Vec3& a = st.solver.instruments[static_cast<std::size_t>(L)].rod.x[i];
-  const Vec3& b = st.solver.instruments[static_cast<std::size_t>(L)].rod.x[std::min(i + 1, rod.n - 1)];
-  const double span = std::min(i + 1, rod.n - 1) > i ? rod.node_s[i + 1] - rod.node_s[i] : 1.0;
-  const Vec3 p = a + std::clamp((s_mid - rod.node_s[i]) / span, 0.0, 1.0) * (b - a);
+  const auto& x = st.solver.instruments[static_cast<std::size_t>(L)].rod.x;
+  const int j = std::min(i + 1, rod.n - 1);
+  const double span = j > i ? rod.node_s[j] - rod.node_s[i] : 1.0;
+  const Vec3 p = x[i] + std::clamp((s_mid - rod.node_s[i]) / span, 0.0, 1.0) * (x[j] - x[i]);
   Vec3 X = p;
   if (md.motion)
     for (int k = 0; k < 3; ++k) X = p - md.motion->displacement(X, st.time());
   const std::size_t best =
       nearest_point(route_, X, progress_ == 0.0 ? nullptr : &route_s_, progress_, 0.03);
   progress_ = route_s_[best];
-  const double remaining = route_s_.back() - progress_;
+  // In the lesion's segment, along that segment's own arc length (as the outcome measures the
+  // stent against the lesion), else along the route.
+  const double along_route = place_goal_ - progress_;
+  if (std::abs(along_route) > kPlaceBeyond) return along_route;
+  const TreeHit hit = locate_near(md.tree, X, place_target_, 2.0 * kPlaceBeyond);
+  if (hit.loc.segment == place_target_.segment && hit.outside < 0.0)
+    return place_target_.distance - hit.loc.distance;
+  return along_route;
+}
+
+// The markers brought to the lesion's middle: advanced (slower near it), pulled back if past it;
+// placed when within tolerance for kPlacedTime (the catheter's stored push has come out).
+void Autopilot::place(const SimModel& md, const SimState& st, const AutopilotPhase& ph) {
+  const int L = leader_;
+  const double dt = md.dt();
+  const double remaining = markers_remaining(md, st, L);
   const double depth = st.solver.instruments[static_cast<std::size_t>(L)].drive.depth;
   if (std::abs(remaining) < ph.tolerance) {
     if (placed_since_ < 0.0) placed_since_ = st.time();
-    if (st.time() - placed_since_ >= 0.2) {
+    if (st.time() - placed_since_ >= kPlacedTime) {
+      placed_ = L;
       ++phase_;
       start_phase(md, st);
     }
@@ -385,9 +409,19 @@ void Autopilot::command(const SimModel& md, const SimState& st, StepCommands& ou
         place(md, st, ph);
         break;
       case AutopilotPhase::Kind::kInflate: {
-        // The indeflator turned up to the pressure over the ramp, then held.
+        // The indeflator turned up to the pressure over the ramp, then held. While the balloon
+        // is still soft (below kPositionCheck) the markers placed just before are watched and
+        // the catheter nudged back onto the lesion's middle, as a cardiologist checks the
+        // position at the first atmospheres.
         const double since = t - phase_start_;
         pressure_ = ph.ramp > 0.0 ? ph.pressure * std::min(1.0, since / ph.ramp) : ph.pressure;
+        if (placed_ >= 0 && pressure_ < kPositionCheck) {
+          const double remaining = markers_remaining(md, st, placed_);
+          const double v = kNudgeSpeed * dt;
+          const double d = st.solver.instruments[static_cast<std::size_t>(placed_)].drive.depth;
+          depth_[placed_] =
+              std::clamp(depth_[placed_] + std::clamp(remaining, -v, v), d - 0.005, d + 0.005);
+        }
         if (since >= ph.ramp + ph.duration) {
           ++phase_;
           start_phase(md, st);

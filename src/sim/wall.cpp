@@ -87,10 +87,10 @@ void sync_wall(const SimModel& md, SimState& st, SimScratch& sc, double t1) {
   bool changed = false;
   // The lesions' opening.
   bool same = true;
-  for (std::size_t k = 0; k < ps.opening.size() && same; ++k)
-    same = ps.opening[k].t == sc.shown_opening[k].t;
+  for (std::size_t k = 0; k < ps.wall_opening.size() && same; ++k)
+    same = ps.wall_opening[k].t == sc.shown_opening[k].t;
   if (!same) {
-    morph_positions(md.lumen, pm.morph, ps.opening, sc.morphed);
+    morph_positions(md.lumen, pm.morph, ps.wall_opening, sc.morphed);
     if (sc.beating) {
       sc.beating->morph(sc.morphed);
     } else {
@@ -106,7 +106,8 @@ void sync_wall(const SimModel& md, SimState& st, SimScratch& sc, double t1) {
       }
       sc.static_tree.refit(sc.static_mesh);
     }
-    for (std::size_t k = 0; k < ps.opening.size(); ++k) sc.shown_opening[k].t = ps.opening[k].t;
+    for (std::size_t k = 0; k < ps.wall_opening.size(); ++k)
+      sc.shown_opening[k].t = ps.wall_opening[k].t;
     changed = true;
   }
   // The deployed stents: rebuilt when their rings change, moved to t1.
