@@ -388,6 +388,18 @@ TEST(CatalogueErrors, BalloonAndStentNameFileAndField) {
          j["stent"]["crimped_profile_mm"] = 3.2;
        },
        "stent.crimped_profile_mm", "less than nominal_diameter_mm"},
+      {"entry profile without a taper",
+       [](json& j) { j["tip_entry_profile_in"] = 0.018; },
+       "tip_taper_mm", "expected with a tip entry profile"},
+      {"taper without an entry profile",
+       [](json& j) { j["tip_taper_mm"] = 3; },
+       "tip_entry_profile_in, tip_entry_profile_mm", "expected one of these keys"},
+      {"entry profile inside the lumen",
+       [](json& j) {
+         j["tip_taper_mm"] = 3;
+         j["tip_entry_profile_in"] = 0.01;
+       },
+       "tip_entry_profile_in", "more than the inner diameter"},
       {"markers beyond the shaft",
        [](json& j) {
          j["radiopacity"]["markers_mm_from_tip"] = {4, 1600};

@@ -49,6 +49,18 @@ TEST(RodBuild, BadDefinitionsNameTheField) {
   expect_input_error(with([](RodDef& d) { d.segments = 1; }), "segments");
   expect_input_error(with([](RodDef& d) { d.youngs_modulus = -1e9; }), "youngs_modulus");
   expect_input_error(with([](RodDef& d) { d.tip_length = 2.0 * d.length; }), "tip_length");
+  expect_input_error(with([](RodDef& d) { d.taper_length = 2.0 * d.length; }), "taper_length");
+  expect_input_error(with([](RodDef& d) {
+                       d.taper_length = 0.01;
+                       d.taper_outer_radius = 2.0 * d.outer_radius;
+                     }),
+                     "taper_outer_radius");
+  expect_input_error(with([](RodDef& d) {
+                       d.inner_radius = 0.2e-3;
+                       d.taper_length = 0.01;
+                       d.taper_outer_radius = 0.2e-3;
+                     }),
+                     "taper_outer_radius");
   expect_input_error(with([](RodDef& d) { d.tip_shape = {TipSection::arc(-1e-3, 1.0)}; }),
                      "tip_shape[0].radius");
   expect_input_error(with([](RodDef& d) { d.tip_shape = {TipSection::arc(1.0, 3.0)}; }),
@@ -79,6 +91,32 @@ TEST(RodBuild, SoftTipScalesTheModulusOverTheTipOnly) {
     const bool tip = md.edge_s[j] >= d.length - d.tip_length;
     EXPECT_DOUBLE_EQ(md.youngs[j], tip ? 0.21 * d.youngs_modulus : d.youngs_modulus);
   }
+}
+
+// A taper (a balloon catheter's tip): over the distal taper_length each edge's outer radius falls
+// linearly (at its midpoint) to the entry profile, and its section, bending stiffness and mass
+// follow; proximal edges are untouched.
+TEST(RodBuild, TaperedTipNarrowsTheSectionLinearly) {
+  RodDef d;
+  d.length = 0.1;
+  d.segments = 50;
+  d.outer_radius = 0.35e-3;
+  d.inner_radius = 0.2e-3;
+  d.taper_length = 0.01;
+  d.taper_outer_radius = 0.23e-3;
+  const RodModel md = build_rod(d);
+  const double pi = std::numbers::pi;
+  int tapered = 0;
+  for (int j = 0; j < md.m; ++j) {
+    const double u = (md.edge_s[j] - (d.length - d.taper_length)) / d.taper_length;
+    const double ro = u > 0.0 ? 0.35e-3 + u * (0.23e-3 - 0.35e-3) : 0.35e-3;
+    tapered += u > 0.0 ? 1 : 0;
+    EXPECT_NEAR(md.outer_radius[j], ro, 1e-15) << "edge " << j;
+    EXPECT_NEAR(md.area[j], pi * (ro * ro - 0.04e-6), 1e-18);
+    EXPECT_NEAR(md.bend_inertia[j], pi * (std::pow(ro, 4) - std::pow(0.2e-3, 4)) / 4.0, 1e-24);
+  }
+  EXPECT_EQ(tapered, 5);
+  EXPECT_LT(md.node_mass.back(), md.node_mass[md.n / 2]);
 }
 
 TEST(RodBuild, HollowSectionStiffnessAndMass) {
