@@ -24,8 +24,13 @@ namespace vcsim {
 // Model
 
 // A balloon (a balloon catheter's, or a stent system's delivery balloon) on an instrument.
+// Balloons keep their index for the whole run: when their instrument is removed from the scene
+// (an exchange, docs/scenarios.md) the balloon stays in the model as removed (`instrument` -1),
+// its state and stent with it, so that its events, its outcome and a stent it deployed remain.
 struct BalloonModel {
-  int instrument = -1;
+  int instrument = -1;      // the scene's instrument it is on; -1: removed from the scene
+  std::string label;        // what reports call it: its instrument's name (set by the sim layer)
+  std::string catalogue;    // its instrument's catalogue entry
   std::vector<int> outers;  // the instruments whose lumens it runs in (the guide)
   BalloonSpec spec;
   std::optional<StentSpec> stent;  // crimped on the balloon
@@ -36,6 +41,7 @@ struct BalloonModel {
   std::vector<double> node_length;  // (last - first + 1) balloon length each node carries (m)
   double shaft_radius = 0.0;        // of the folded balloon: half the crossing profile (m)
   int nodes() const { return last - first + 1; }
+  bool removed() const { return instrument < 0; }
 };
 
 // How a lesion takes a balloon (per lesion of the tree; estimates, docs/procedure.md).
@@ -70,6 +76,10 @@ ProcedureModel make_procedure_model(const VesselTree& tree, const Lumen& lumen,
                                     const SolverModel& solver,
                                     std::span<const InstrumentSpec> specs,
                                     std::span<const LesionMechanics> mechanics = {});
+// The balloon of instrument i (specs[i] must have one): which of its rod's nodes carry it, and
+// the instruments whose lumens it runs in. Throws InputError (too few nodes along the balloon).
+BalloonModel make_balloon_model(const SolverModel& solver, std::span<const InstrumentSpec> specs,
+                                int instrument);
 
 // ---------------------------------------------------------------------------------------------
 // State
@@ -123,7 +133,9 @@ const char* to_string(ProcedureEvent::Kind k);
 
 struct ProcedureState {
   std::vector<BalloonState> balloons;  // (balloon)
-  std::vector<StentState> stents;      // (balloon) used for stent systems
+  // (balloon) used for stent systems; a deployed stent stays in the vessel when its balloon's
+  // instrument is removed from the scene
+  std::vector<StentState> stents;
   // (lesion) how far each lesion is opened now, the most a balloon opened it, and what a stent
   // holds open
   std::vector<LesionOpening> opening, max_opening, stent_hold;
@@ -144,6 +156,10 @@ struct ProcedureState {
 };
 
 ProcedureState make_procedure_state(const ProcedureModel& model, SolverState& solver);
+// Sizes `state` for the balloons `model` has beyond those of the state (added to the scene with
+// their instruments), as make_procedure_state does, and sizes those instruments' holds.
+void extend_procedure_state(const ProcedureModel& model, ProcedureState& state,
+                            SolverState& solver);
 
 // ---------------------------------------------------------------------------------------------
 // Step
@@ -192,6 +208,7 @@ struct StentOutcome {
   double malapposition = 0.0;        // largest gap between the stent and the lumen around it (m)
 };
 struct BalloonOutcome {
+  bool removed = false;       // its instrument was removed from the scene
   double max_pressure = 0.0;  // Pa
   double max_ratio = 0.0;     // balloon-to-artery: free diameter over the reference diameter
   bool ruptured = false;
@@ -200,7 +217,7 @@ struct BalloonOutcome {
 struct ProcedureOutcome {
   std::vector<LesionOutcome> lesions;
   std::vector<BalloonOutcome> balloons;
-  std::vector<StentOutcome> stents;  // (balloon) of stent systems
+  std::vector<StentOutcome> stents;  // (balloon) of stent systems, removed ones included
 };
 ProcedureOutcome procedure_outcome(const ProcedureModel& model, const VesselTree& tree,
                                    const ProcedureState& state);

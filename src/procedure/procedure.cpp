@@ -95,42 +95,48 @@ const char* to_string(ProcedureEvent::Kind k) {
 
 // --- model ---------------------------------------------------------------------------------------
 
+BalloonModel make_balloon_model(const SolverModel& solver, std::span<const InstrumentSpec> specs,
+                                int instrument) {
+  const auto i = static_cast<std::size_t>(instrument);
+  const BalloonSpec& b = *specs[i].balloon;
+  const RodModel& md = solver.instruments[i].rod();
+  BalloonModel bm;
+  bm.instrument = instrument;
+  bm.catalogue = specs[i].name;
+  bm.spec = b;
+  bm.stent = specs[i].stent;
+  bm.shaft_radius = 0.5 * b.crossing_profile;
+  for (const CouplingModel& c : solver.couplings)
+    if (c.inner == instrument) bm.outers.push_back(c.outer);
+  const double distal = md.length - b.distal_offset;  // arc length of its distal end
+  const double longest = b.length_at(b.rated_burst_pressure);
+  bm.first = md.n;
+  for (int j = 0; j < md.n; ++j) {
+    const double from_distal = distal - md.node_s[j];
+    if (from_distal < -kCone || from_distal > longest + kCone) continue;
+    bm.first = std::min(bm.first, j);
+    bm.last = j;
+  }
+  if (bm.nodes() < 3)
+    throw InputError(specs[i].source, "balloon",
+                     "expected at least 3 rod nodes along the balloon (a finer tip_segment_mm)");
+  for (int j = bm.first; j <= bm.last; ++j) {
+    bm.from_distal.push_back(distal - md.node_s[j]);
+    const double lo = j > 0 ? 0.5 * (md.node_s[j - 1] + md.node_s[j]) : md.node_s[j];
+    const double hi = j + 1 < md.n ? 0.5 * (md.node_s[j] + md.node_s[j + 1]) : md.node_s[j];
+    bm.node_length.push_back(hi - lo);
+  }
+  return bm;
+}
+
 ProcedureModel make_procedure_model(const VesselTree& tree, const Lumen& lumen,
                                     const SolverModel& solver,
                                     std::span<const InstrumentSpec> specs,
                                     std::span<const LesionMechanics> mechanics) {
   ProcedureModel m;
-  for (std::size_t i = 0; i < specs.size(); ++i) {
-    if (!specs[i].balloon) continue;
-    const BalloonSpec& b = *specs[i].balloon;
-    const RodModel& md = solver.instruments[i].rod();
-    BalloonModel bm;
-    bm.instrument = static_cast<int>(i);
-    bm.spec = b;
-    bm.stent = specs[i].stent;
-    bm.shaft_radius = 0.5 * b.crossing_profile;
-    for (const CouplingModel& c : solver.couplings)
-      if (c.inner == static_cast<int>(i)) bm.outers.push_back(c.outer);
-    const double distal = md.length - b.distal_offset;  // arc length of its distal end
-    const double longest = b.length_at(b.rated_burst_pressure);
-    bm.first = md.n;
-    for (int j = 0; j < md.n; ++j) {
-      const double from_distal = distal - md.node_s[j];
-      if (from_distal < -kCone || from_distal > longest + kCone) continue;
-      bm.first = std::min(bm.first, j);
-      bm.last = j;
-    }
-    if (bm.nodes() < 3)
-      throw InputError(specs[i].source, "balloon",
-                       "expected at least 3 rod nodes along the balloon (a finer tip_segment_mm)");
-    for (int j = bm.first; j <= bm.last; ++j) {
-      bm.from_distal.push_back(distal - md.node_s[j]);
-      const double lo = j > 0 ? 0.5 * (md.node_s[j - 1] + md.node_s[j]) : md.node_s[j];
-      const double hi = j + 1 < md.n ? 0.5 * (md.node_s[j] + md.node_s[j + 1]) : md.node_s[j];
-      bm.node_length.push_back(hi - lo);
-    }
-    m.balloons.push_back(std::move(bm));
-  }
+  for (std::size_t i = 0; i < specs.size(); ++i)
+    if (specs[i].balloon)
+      m.balloons.push_back(make_balloon_model(solver, specs, static_cast<int>(i)));
   if (!mechanics.empty() && mechanics.size() != tree.lesions.size())
     throw InputError("procedure", "lesions", "expected mechanics for every lesion of the tree");
   for (std::size_t k = 0; k < tree.lesions.size(); ++k) {
@@ -154,9 +160,24 @@ ProcedureModel make_procedure_model(const VesselTree& tree, const Lumen& lumen,
 
 ProcedureState make_procedure_state(const ProcedureModel& m, SolverState& solver) {
   ProcedureState s;
+  extend_procedure_state(m, s, solver);
+  LesionOpening zero;
+  zero.t.assign(kLesionSamples, 0.0);
+  s.opening.assign(m.lesions.size(), zero);
+  s.max_opening.assign(m.lesions.size(), zero);
+  s.stent_hold.assign(m.lesions.size(), zero);
+  s.pushed.assign(m.lesions.size(), zero);
+  s.crossed.assign(m.lesions.size(), zero);
+  s.wall_opening.assign(m.lesions.size(), zero);
+  s.events.reserve(64);
+  return s;
+}
+
+void extend_procedure_state(const ProcedureModel& m, ProcedureState& s, SolverState& solver) {
+  const std::size_t from = s.balloons.size();
   s.balloons.resize(m.balloons.size());
   s.stents.resize(m.balloons.size());
-  for (std::size_t b = 0; b < m.balloons.size(); ++b) {
+  for (std::size_t b = from; b < m.balloons.size(); ++b) {
     const BalloonModel& bm = m.balloons[b];
     s.balloons[b].radius.assign(bm.nodes(), bm.shaft_radius);
     s.balloons[b].s.assign(bm.nodes(), 0.0);
@@ -169,6 +190,7 @@ ProcedureState make_procedure_state(const ProcedureModel& m, SolverState& solver
       s.stents[b].ring_s.assign(rings, 0.0);
       s.stents[b].ring_radius.assign(rings, 0.0);
     }
+    if (bm.removed()) continue;
     // The hold's arrays sized once: inflating allocates nothing.
     InstrumentState& in = solver.instruments[bm.instrument];
     const std::size_t n = in.rod.x.size();
@@ -180,16 +202,6 @@ ProcedureState make_procedure_state(const ProcedureModel& m, SolverState& solver
     h.wall_load.assign(n, 0.0);
     h.clear();
   }
-  LesionOpening zero;
-  zero.t.assign(kLesionSamples, 0.0);
-  s.opening.assign(m.lesions.size(), zero);
-  s.max_opening.assign(m.lesions.size(), zero);
-  s.stent_hold.assign(m.lesions.size(), zero);
-  s.pushed.assign(m.lesions.size(), zero);
-  s.crossed.assign(m.lesions.size(), zero);
-  s.wall_opening.assign(m.lesions.size(), zero);
-  s.events.reserve(64);
-  return s;
 }
 
 void ProcedureState::hash_into(StateHasher& h) const {
@@ -345,6 +357,7 @@ void procedure_before_step(const ProcedureModel& m, const SolverModel& sm, const
   for (std::size_t b = 0; b < m.balloons.size(); ++b) {
     const BalloonModel& bm = m.balloons[b];
     BalloonState& st = ps.balloons[b];
+    if (bm.removed()) continue;  // outside the patient, uninflated, since its removal
     InstrumentState& in = solver.instruments[bm.instrument];
     const RodModel& md = sm.instruments[bm.instrument].rod();
     const BalloonSpec& spec = bm.spec;
@@ -520,6 +533,7 @@ void procedure_after_step(const ProcedureModel& m, const SolverModel& sm, const 
     const BalloonState& st = ps.balloons[b];
     // Released: its balloon deflated (in a vessel) after expanding it well past its crimp.
     if (stent.phase == StentState::Phase::kCrimped) {
+      if (bm.removed()) continue;  // left the scene crimped on its balloon
       const double crimp = 0.5 * bm.stent->crimped_profile;
       const double most = *std::max_element(stent.expanded.begin(), stent.expanded.end());
       // (Passing kDeflated on the way up while inflating is not a release.)
@@ -604,7 +618,8 @@ ProcedureOutcome procedure_outcome(const ProcedureModel& m, const VesselTree& tr
   }
   for (std::size_t b = 0; b < m.balloons.size(); ++b) {
     const BalloonState& st = ps.balloons[b];
-    out.balloons.push_back({st.max_pressure, st.max_ratio, st.ruptured, st.over_expanded});
+    out.balloons.push_back(
+        {m.balloons[b].removed(), st.max_pressure, st.max_ratio, st.ruptured, st.over_expanded});
     if (!m.balloons[b].stent) continue;
     const StentState& stent = ps.stents[b];
     StentOutcome so;
