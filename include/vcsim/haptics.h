@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "vcsim/commands.h"
+#include "vcsim/core.h"
 
 namespace vcsim {
 
@@ -66,6 +67,28 @@ struct CommandLimits {
   std::string check(const InstrumentCommand& c) const;
 };
 
+// A change of the scene's instruments during a run (docs/scenarios.md, "Instrument exchange"):
+// an instrument added, outside the patient at the sheath (a balloon catheter to be advanced over
+// the wire in place, another wire, a catheter over a wire), or one removed (withdrawn first).
+struct InstrumentChange {
+  enum class Kind { kAdd, kRemove };
+  Kind kind = Kind::kAdd;
+  std::string name;  // the instrument added or removed
+  // kAdd: the instrument as a scenario declares one (instruments[] there)
+  std::string catalogue;  // catalogue entry
+  std::string inside;     // the instrument whose lumen holds it, "" for none
+  std::string over;       // the wire it rides on, "" for none
+  bool rim = true;
+  int max_nodes = 256;
+  double tip_segment = 1.0e-3;  // m
+  // Where it was asked for, for errors: the timeline file and "keyframes[3].add", ...
+  std::string source = "exchange";
+  std::string field = "instruments";
+};
+const char* to_string(InstrumentChange::Kind k);
+// "add stent stent-cocr-3.0x18 inside=guide over=wire", "remove wire" (the IGTL grammar).
+std::string describe(const InstrumentChange& c);
+
 // A source of commands, polled by the physics thread once per step.
 class InputSource {
  public:
@@ -77,6 +100,29 @@ class InputSource {
   // Hands the latest hub forces (one per instrument, by index) to the device (may be called every
   // step; does not block long).
   virtual void publish(std::span<const HandFeedback> feedback) { (void)feedback; }
+
+  // Instrument exchange. Before each step the runner asks for changes of the scene (until this
+  // returns false; none by default), applies each (Simulator::exchange), then reports back:
+  // exchanged() with the scene's instrument names in their new order, or exchange_refused().
+  virtual bool poll_exchange(double sim_time, InstrumentChange& out) {
+    (void)sim_time;
+    (void)out;
+    return false;
+  }
+  // The scene's instruments changed (this source's change or another's): a source that resolved
+  // names to indices binds them again here; drive commands follow the new order from the next
+  // poll.
+  virtual void exchanged(const InstrumentChange& change, std::span<const std::string> instruments) {
+    (void)change;
+    (void)instruments;
+  }
+  // The change asked for was refused and the scene is unchanged. By default the refusal is
+  // thrown on: a script that asks for an impossible exchange is bad input. A live device logs
+  // and answers it; the autopilot gives up.
+  virtual void exchange_refused(const InstrumentChange& change, const InputError& why) {
+    (void)change;
+    throw why;
+  }
 };
 
 // A timeline file replayed deterministically: the commands are a pure function of time.
@@ -93,6 +139,12 @@ class InputSource {
 // its first keyframe it rests at that keyframe's position (or zero speed). Balloon pressure
 // moves linearly between the keyframes that give it; syringe flow and buttons hold from the
 // keyframe that gives them. All three are 0 before their first keyframe.
+//
+// A keyframe may also change the scene's instruments (docs/scenarios.md, "Instrument exchange"):
+//   {"t_s": 9, "remove": "wire"},
+//   {"t_s": 9.5, "add": {"name": "balloon", "catalogue": "balloon-sc-3.0x15", "over": "wire2"}}
+// ("add" takes the keys of a scenario's instruments[]); with both, the removal comes first. Each
+// is asked for once (poll_exchange), before the first step at or after its time.
 class ScriptedTimeline : public InputSource {
  public:
   static ScriptedTimeline parse(std::string_view json_text, const std::string& source,
@@ -101,14 +153,26 @@ class ScriptedTimeline : public InputSource {
 
   // Resolves the timeline's instrument names to the scene's instruments, in the scene's order
   // (`instruments`); an instrument the timeline does not name is held still. A name that is not
-  // one of them is an InputError naming the timeline. poll() needs it first.
+  // one of them, nor one the timeline adds or removes itself, is an InputError naming the
+  // timeline. poll() needs it first.
   void bind(std::span<const std::string> instruments);
   // The commands at sim_time, one per bound instrument, in SI units.
   void poll(double sim_time, StepCommands& out) override;
   void publish(std::span<const HandFeedback> feedback) override;
+  // The next exchange whose keyframe time has come (each once, in order).
+  bool poll_exchange(double sim_time, InstrumentChange& out) override;
+  // Binds the scene's new instruments.
+  void exchanged(const InstrumentChange& change, std::span<const std::string> instruments) override;
 
+  struct TimedChange {
+    double t = 0.0;  // s
+    InstrumentChange change;
+  };
+  // The keyframes' exchanges, in order.
+  const std::vector<TimedChange>& exchanges() const { return exchanges_; }
   double duration() const;  // time of the last keyframe (s)
-  // True when a keyframe gives a balloon pressure above 0 (a scenario without a balloon refuses it).
+  // True when a keyframe gives a balloon pressure above 0 (a scenario without a balloon refuses
+  // it).
   bool inflates() const;
   const std::string& source() const { return source_; }
   const std::vector<std::string>& instrument_names() const { return names_; }  // sorted
@@ -126,6 +190,8 @@ class ScriptedTimeline : public InputSource {
   std::vector<std::string> names_;
   std::vector<std::vector<Key>> tracks_;  // (instrument) keyframes naming it, by time
   std::vector<ScalarKey> balloon_, syringe_, buttons_;
+  std::vector<TimedChange> exchanges_;
+  std::size_t next_exchange_ = 0;  // the first exchange not yet asked for
   double duration_ = 0.0;
   std::string source_;
   std::vector<int> track_of_;  // (bound instrument) its track, -1: not in the timeline
@@ -215,6 +281,8 @@ struct IgtlStats {
   std::uint64_t messages_accepted = 0;  // messages that changed a command
   std::uint64_t messages_dropped = 0;   // malformed, out of range, unknown name or type
   std::uint64_t feedback_sent = 0;      // force messages sent
+  std::uint64_t exchanges = 0;          // instrument exchanges asked for and done
+  std::uint64_t exchanges_refused = 0;  // asked for and refused by the simulation
   bool connected = false;
 };
 
@@ -234,9 +302,16 @@ class IgtlServer : public InputSource {
   IgtlServer& operator=(const IgtlServer&) = delete;
 
   int port() const;  // the port actually bound (useful with port 0)
-  // Commands by index of IgtlServerOptions::instruments, SI units.
+  // Commands by index of IgtlServerOptions::instruments (after an exchange, of the scene's
+  // instruments then), SI units.
   void poll(double sim_time, StepCommands& out) override;
   void publish(std::span<const HandFeedback> feedback) override;
+  // Exchanges a client asked for on the "exchange" device, in order; each applied one answered
+  // "done: ..." and the device names rebound, each refused one logged and answered
+  // "refused: ..." (docs/devices.md).
+  bool poll_exchange(double sim_time, InstrumentChange& out) override;
+  void exchanged(const InstrumentChange& change, std::span<const std::string> instruments) override;
+  void exchange_refused(const InstrumentChange& change, const InputError& why) override;
   IgtlStats stats() const;
   // Bit i set once a command for instrument i (by index of IgtlServerOptions::instruments) has
   // been accepted: which instruments the device drives, for an app that also has a keyboard.

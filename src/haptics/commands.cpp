@@ -29,6 +29,18 @@ std::string num(double v) {
 }
 }  // namespace
 
+const char* to_string(InstrumentChange::Kind k) {
+  return k == InstrumentChange::Kind::kAdd ? "add" : "remove";
+}
+
+std::string describe(const InstrumentChange& c) {
+  if (c.kind == InstrumentChange::Kind::kRemove) return cat("remove ", c.name);
+  std::string s = cat("add ", c.name, " ", c.catalogue);
+  if (!c.inside.empty()) s += cat(" inside=", c.inside);
+  if (!c.over.empty()) s += cat(" over=", c.over);
+  return s;
+}
+
 DriveCommand to_drive_command(const InstrumentCommand& c) {
   DriveCommand d;
   d.mode = c.mode == InstrumentCommand::Mode::kPosition ? DriveCommand::Mode::kPosition
@@ -57,6 +69,32 @@ std::string CommandLimits::check(const InstrumentCommand& c) const {
 }
 
 // ---- scripted timeline ----
+
+namespace {
+
+// A keyframe's "add": an instrument as a scenario's instruments[] declares it.
+InstrumentChange parse_added(JsonFields& a) {
+  InstrumentChange c;
+  c.kind = InstrumentChange::Kind::kAdd;
+  c.name = a.text("name");
+  if (c.name.size() > 14) a.fail("name", "expected an instrument name of 1-14 characters");
+  c.catalogue = a.text("catalogue");
+  c.inside = a.text_or("inside", "");
+  c.over = a.text_or("over", "");
+  if (a.has("rim")) {
+    if (c.inside.empty())
+      a.fail("rim", "expected only with \"inside\" (the outer instrument's rim)");
+    c.rim = a.boolean_or("rim", true);
+  }
+  c.max_nodes = a.integer_or("max_nodes", 16, 512, 256);
+  c.tip_segment = a.in_range_or("tip_segment_mm", 0.1, 20.0, 1.0) * kMm;
+  a.finish();
+  c.source = a.source();
+  c.field = a.path();
+  return c;
+}
+
+}  // namespace
 
 ScriptedTimeline ScriptedTimeline::parse(std::string_view json_text, const std::string& source,
                                          const CommandLimits& limits) {
@@ -122,6 +160,18 @@ ScriptedTimeline ScriptedTimeline::parse(std::string_view json_text, const std::
       }
       tl.syringe_.push_back({t, q});
     }
+    if (k.has("remove")) {
+      InstrumentChange c;
+      c.kind = InstrumentChange::Kind::kRemove;
+      c.name = k.text("remove");
+      c.source = source;
+      c.field = k.field("remove");
+      tl.exchanges_.push_back({t, c});
+    }
+    if (k.has("add")) {
+      JsonFields a = k.object("add");
+      tl.exchanges_.push_back({t, parse_added(a)});
+    }
     if (k.has("buttons")) {
       const double b = k.number("buttons");
       if (b < 0 || b > 4294967295.0 || b != std::floor(b)) {
@@ -176,8 +226,13 @@ double lerp(double a, double b, double u) {
 }  // namespace
 
 void ScriptedTimeline::bind(std::span<const std::string> instruments) {
+  auto exchanged_here = [&](const std::string& name) {
+    return std::any_of(exchanges_.begin(), exchanges_.end(),
+                       [&](const TimedChange& e) { return e.change.name == name; });
+  };
   for (const std::string& name : names_)
-    if (std::find(instruments.begin(), instruments.end(), name) == instruments.end()) {
+    if (std::find(instruments.begin(), instruments.end(), name) == instruments.end() &&
+        !exchanged_here(name)) {
       std::string list;
       for (const std::string& n : instruments) list += (list.empty() ? "" : ", ") + n;
       throw InputError(source_, "keyframes",
@@ -246,6 +301,19 @@ void ScriptedTimeline::poll(double sim_time, StepCommands& out) {
   const std::ptrdiff_t kn = last_at(buttons_, sim_time);
   out.buttons =
       kn < 0 ? 0u : static_cast<std::uint32_t>(buttons_[static_cast<std::size_t>(kn)].value);
+}
+
+bool ScriptedTimeline::poll_exchange(double sim_time, InstrumentChange& out) {
+  // (1 ns: a time summed step by step lands a rounding short of the keyframe's)
+  if (next_exchange_ >= exchanges_.size() || exchanges_[next_exchange_].t > sim_time + 1e-9)
+    return false;
+  out = exchanges_[next_exchange_++].change;
+  return true;
+}
+
+void ScriptedTimeline::exchanged(const InstrumentChange&,
+                                 std::span<const std::string> instruments) {
+  bind(instruments);
 }
 
 void ScriptedTimeline::publish(std::span<const HandFeedback> feedback) {

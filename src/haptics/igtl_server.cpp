@@ -8,9 +8,11 @@
 #include <arpa/inet.h>
 #include <fcntl.h>
 #include <igtlSensorMessage.h>
+#include <igtlStringMessage.h>
 #include <igtlTimeStamp.h>
 #include <igtl_header.h>
 #include <igtl_sensor.h>
+#include <igtl_string.h>
 #include <igtl_util.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
@@ -24,6 +26,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <deque>
 #include <iostream>
 #include <mutex>
 #include <sstream>
@@ -91,8 +94,46 @@ bool valid_instrument_name(const std::string& s) {
           c == '-'))
       return false;
   }
-  return s != "balloon" && s != "syringe" && s != "buttons" && s.rfind("vel_", 0) != 0 &&
-         s.rfind("force_", 0) != 0;
+  return s != "balloon" && s != "syringe" && s != "buttons" && s != "exchange" &&
+         s.rfind("vel_", 0) != 0 && s.rfind("force_", 0) != 0;
+}
+
+// The "exchange" device's grammar (docs/devices.md): "add NAME CATALOGUE [inside=X] [over=Y]" or
+// "remove NAME", words separated by spaces. Returns "" with `out` filled, else what is wrong.
+std::string parse_exchange(const std::string& text, InstrumentChange& out) {
+  std::istringstream in(text);
+  std::vector<std::string> w;
+  for (std::string word; in >> word;) w.push_back(word);
+  const std::string grammar =
+      "expected \"add NAME CATALOGUE [inside=X] [over=Y]\" or \"remove NAME\"";
+  if (w.empty()) return grammar;
+  out = InstrumentChange{};
+  out.source = "igtl";
+  out.field = "exchange";
+  if (w[0] == "remove" && w.size() == 2) {
+    out.kind = InstrumentChange::Kind::kRemove;
+    out.name = w[1];
+    return {};
+  }
+  if (w[0] != "add" || w.size() < 3 || w.size() > 5) return grammar;
+  out.kind = InstrumentChange::Kind::kAdd;
+  out.name = w[1];
+  out.catalogue = w[2];
+  if (!valid_instrument_name(out.name))
+    return cat(
+        "expected a name of 1-14 characters from A-Z a-z 0-9 _ -, not balloon, syringe, "
+        "buttons, exchange or a vel_/force_ prefix; got \"",
+        out.name, "\"");
+  for (std::size_t k = 3; k < w.size(); ++k) {
+    const std::string& o = w[k];
+    std::string* to = o.rfind("inside=", 0) == 0 ? &out.inside
+                      : o.rfind("over=", 0) == 0 ? &out.over
+                                                 : nullptr;
+    if (!to || !to->empty()) return cat(grammar, ", got \"", o, "\"");
+    *to = o.substr(o.find('=') + 1);
+    if (to->empty()) return cat("expected a name after \"", o, "\"");
+  }
+  return {};
 }
 
 }  // namespace
@@ -115,14 +156,18 @@ struct IgtlServer::Impl {
     std::uint64_t commanded = 0;  // bit i: instrument i has had a command accepted
   };
   mutable std::mutex cmd_mu;
-  Latest latest;
+  Latest latest;                           // and, under the same lock:
+  std::deque<InstrumentChange> exchanges;  // asked for by the client, for poll_exchange
+  std::vector<std::string> replies;        // answers to the client on "exchange", to send
+  std::vector<std::string> physics_log;    // lines the physics thread wants logged
 
   // Hand-over from the physics thread: the hub forces since the last message, one per instrument.
   std::mutex fb_mu;
   FeedbackDecimator feedback;
+  std::vector<std::string> fb_names;  // the instruments `feedback` is by (the scene's)
 
   std::atomic<std::uint64_t> n_connections{0}, n_disconnections{0}, n_accepted{0}, n_dropped{0},
-      n_feedback{0};
+      n_feedback{0}, n_exchanges{0}, n_refused{0};
   std::atomic<bool> connected{false};
 
   // Server thread only.
@@ -130,6 +175,7 @@ struct IgtlServer::Impl {
   std::vector<unsigned char> tx;  // bytes to send (whole messages)
   std::size_t tx_sent = 0;
   std::vector<igtl::SensorMessage::Pointer> out_msgs;  // one per instrument, reused
+  std::vector<std::string> out_names;                  // the instruments of out_msgs
   std::vector<HandFeedback> fb_copy;
   Clock::time_point log_window;
   int log_lines = 0;
@@ -165,11 +211,17 @@ struct IgtlServer::Impl {
     log(cat("dropped message '", device, "': ", why));
   }
 
+  // The instrument's index in the scene (under cmd_mu: an exchange changes them), or -1.
   int index_of(std::string_view name) const {
-    for (std::size_t i = 0; i < opt.instruments.size(); ++i) {
-      if (opt.instruments[i] == name) return static_cast<int>(i);
+    for (std::size_t i = 0; i < latest.instruments.size(); ++i) {
+      if (latest.instruments[i].name == name) return static_cast<int>(i);
     }
     return -1;
+  }
+
+  void reply(const std::string& text) {
+    std::lock_guard lock(cmd_mu);
+    replies.push_back(text);
   }
 
   // ---- connection ----
@@ -286,7 +338,36 @@ struct IgtlServer::Impl {
     }
     if (type == "SENSOR") return handle_sensor(device, content, csize);
     if (type == "TRANSFORM") return handle_transform(device, content, csize);
-    drop(device, cat("unsupported message type ", type, " (expected SENSOR or TRANSFORM)"));
+    if (type == "STRING") return handle_string(device, content, csize);
+    drop(device, cat("unsupported message type ", type, " (expected SENSOR, TRANSFORM or STRING)"));
+  }
+
+  // STRING "exchange": a change of the scene's instruments, queued for the physics thread, which
+  // applies or refuses it (exchanged, exchange_refused) before its next step. A request that
+  // does not parse is dropped and answered at once.
+  void handle_string(const std::string& device, const unsigned char* content, std::size_t size) {
+    if (device != "exchange") return drop(device, "expected STRING on device exchange only");
+    if (size < IGTL_STRING_HEADER_SIZE) return drop(device, "STRING body too short");
+    igtl_string_header sh;
+    std::memcpy(&sh, content, IGTL_STRING_HEADER_SIZE);
+    igtl_string_convert_byte_order(&sh);
+    if (size != std::size_t{IGTL_STRING_HEADER_SIZE} + sh.length)
+      return drop(device, "STRING body size does not match its length");
+    std::string text(reinterpret_cast<const char*>(content) + IGTL_STRING_HEADER_SIZE, sh.length);
+    for (char c : text)
+      if (static_cast<unsigned char>(c) < 0x20 || static_cast<unsigned char>(c) > 0x7e)
+        return drop(device, "expected printable ASCII");
+    InstrumentChange change;
+    const std::string why = parse_exchange(text, change);
+    if (!why.empty()) {
+      drop(device, why);
+      reply(cat("refused: ", text, ": ", why));
+      return;
+    }
+    n_accepted.fetch_add(1);
+    log(cat("exchange asked for: ", text));
+    std::lock_guard lock(cmd_mu);
+    exchanges.push_back(std::move(change));
   }
 
   void handle_sensor(const std::string& device, const unsigned char* content, std::size_t size) {
@@ -335,10 +416,8 @@ struct IgtlServer::Impl {
     } else {
       const bool vel = device.rfind("vel_", 0) == 0;
       const std::string_view name = vel ? std::string_view(device).substr(4) : device;
-      const int idx = index_of(name);
-      if (idx < 0) return drop(device, "unknown device name (see docs/devices.md)");
       if (!want(2)) return;
-      set_instrument(idx, device,
+      set_instrument(name, device,
                      vel ? InstrumentCommand::Mode::kVelocity : InstrumentCommand::Mode::kPosition,
                      v[0], v[1], false);
       return;
@@ -349,8 +428,6 @@ struct IgtlServer::Impl {
   // TRANSFORM: the pose of the instrument's hub in the device frame, whose z axis is the
   // insertion axis. Depth = the translation's z component; angle = rotation about z.
   void handle_transform(const std::string& device, const unsigned char* content, std::size_t size) {
-    const int idx = index_of(device);
-    if (idx < 0) return drop(device, "unknown device name (see docs/devices.md)");
     if (size != 48) return drop(device, "TRANSFORM body is not 12 floats");
     // Columns of the upper 3x4 matrix: R(:,0), R(:,1), R(:,2), t (big-endian float32).
     double m[12];
@@ -365,12 +442,18 @@ struct IgtlServer::Impl {
     }
     const double depth_mm = m[11];
     const double angle_deg = std::atan2(m[1], m[0]) * 180.0 / kPi;
-    set_instrument(idx, device, InstrumentCommand::Mode::kPosition, depth_mm, angle_deg, true);
+    set_instrument(device, device, InstrumentCommand::Mode::kPosition, depth_mm, angle_deg, true);
   }
 
-  void set_instrument(int idx, const std::string& device, InstrumentCommand::Mode mode,
-                      double translation, double rotation, bool unwrap) {
-    std::lock_guard lock(cmd_mu);
+  void set_instrument(std::string_view name, const std::string& device,
+                      InstrumentCommand::Mode mode, double translation, double rotation,
+                      bool unwrap) {
+    std::unique_lock lock(cmd_mu);
+    const int idx = index_of(name);
+    if (idx < 0) {
+      lock.unlock();
+      return drop(device, "unknown device name (see docs/devices.md)");
+    }
     InstrumentCommand& c = latest.instruments[static_cast<std::size_t>(idx)];
     if (unwrap && c.mode == InstrumentCommand::Mode::kPosition) {
       // A matrix knows the angle only modulo a turn; take the turn nearest the last command so
@@ -380,9 +463,8 @@ struct IgtlServer::Impl {
     const InstrumentCommand next{c.name, mode, translation, rotation};
     const std::string why = opt.limits.check(next);
     if (!why.empty()) {
-      n_dropped.fetch_add(1);
-      log(cat("dropped message '", device, "': ", why));
-      return;
+      lock.unlock();
+      return drop(device, why);
     }
     c.mode = mode;
     c.translation_mm = translation;
@@ -409,21 +491,55 @@ struct IgtlServer::Impl {
     tx_sent = 0;
   }
 
+  // The answers to exchange requests, as STRING messages on "exchange".
+  void send_replies() {
+    std::vector<std::string> texts, lines;
+    {
+      std::lock_guard lock(cmd_mu);
+      texts.swap(replies);
+      lines.swap(physics_log);
+    }
+    for (const std::string& l : lines) log(l);
+    if (client_fd < 0) return;  // nobody asked (a client that left is not answered)
+    for (const std::string& t : texts) {
+      auto msg = igtl::StringMessage::New();
+      msg->SetDeviceName("exchange");
+      msg->SetString(t.c_str());
+      msg->Pack();
+      const auto* p = static_cast<const unsigned char*>(msg->GetPackPointer());
+      tx.insert(tx.end(), p, p + msg->GetPackSize());
+    }
+    if (!texts.empty()) flush();
+  }
+
+  // Takes each instrument's mean force since the last take into fb_copy; after an exchange, one
+  // force message per instrument of the scene now. Under fb_mu: the physics thread resizes both.
+  void take_feedback() {
+    std::lock_guard lock(fb_mu);
+    if (out_names != fb_names) {
+      out_names = fb_names;
+      out_msgs.clear();
+      for (const std::string& n : out_names) {
+        auto msg = igtl::SensorMessage::New();
+        msg->SetDeviceName(cat("force_", n).c_str());
+        msg->SetLength(2);
+        out_msgs.push_back(msg);
+      }
+      fb_copy.assign(out_names.size(), HandFeedback{});
+    }
+    for (std::size_t i = 0; i < fb_copy.size(); ++i)
+      feedback.take(i, fb_copy[i].axial_force, fb_copy[i].torque);
+  }
+
   void send_feedback() {
     if (client_fd < 0) {
       // Nobody to send to: start each instrument's mean afresh, so that a client connecting later
       // is not sent the mean over the time without one.
-      std::lock_guard lock(fb_mu);
-      for (std::size_t i = 0; i < fb_copy.size(); ++i)
-        feedback.take(i, fb_copy[i].axial_force, fb_copy[i].torque);
+      take_feedback();
       return;
     }
     if (!tx.empty()) return flush();  // still sending the last batch: forces are latest-value
-    {
-      std::lock_guard lock(fb_mu);
-      for (std::size_t i = 0; i < fb_copy.size(); ++i)
-        feedback.take(i, fb_copy[i].axial_force, fb_copy[i].torque);
-    }
+    take_feedback();
     igtl::TimeStamp::Pointer ts = igtl::TimeStamp::New();
     ts->GetTime();
     for (std::size_t i = 0; i < out_msgs.size(); ++i) {
@@ -462,6 +578,7 @@ struct IgtlServer::Impl {
         if (fds[0].revents & POLLIN) accept_pending();
       }
       if (client_fd >= 0 && !tx.empty()) flush();
+      send_replies();
       if (Clock::now() >= next_send) {
         send_feedback();
         next_send += period;
@@ -528,13 +645,9 @@ IgtlServer::IgtlServer(IgtlServerOptions options) : impl_(std::make_unique<Impl>
   // Commands start at rest: depth 0, angle 0, no pressure, no flow.
   for (const auto& n : s.opt.instruments) {
     s.latest.instruments.push_back({n, InstrumentCommand::Mode::kPosition, 0.0, 0.0});
-    s.fb_copy.push_back({0.0, 0.0});
-    auto msg = igtl::SensorMessage::New();
-    msg->SetDeviceName(cat("force_", n).c_str());
-    msg->SetLength(2);
-    s.out_msgs.push_back(msg);
   }
-  s.feedback.resize(s.fb_copy.size());
+  s.fb_names = s.opt.instruments;  // the force messages are made by the server thread
+  s.feedback.resize(s.fb_names.size());
   s.log_window = Clock::now();
   s.thread = std::thread([&s] { s.run(); });
 }
@@ -568,11 +681,59 @@ void IgtlServer::poll(double, StepCommands& out) {
   out.buttons = s.latest.buttons;
 }
 
+bool IgtlServer::poll_exchange(double, InstrumentChange& out) {
+  Impl& s = *impl_;
+  std::lock_guard lock(s.cmd_mu);
+  if (s.exchanges.empty()) return false;
+  out = std::move(s.exchanges.front());
+  s.exchanges.pop_front();
+  return true;
+}
+
+void IgtlServer::exchanged(const InstrumentChange& change,
+                           std::span<const std::string> instruments) {
+  Impl& s = *impl_;
+  {
+    // Commands by the scene's new order: a kept instrument's as the device left it, an added one
+    // at rest at depth 0 until a command names it.
+    std::lock_guard lock(s.cmd_mu);
+    std::vector<InstrumentCommand> next;
+    std::uint64_t mask = 0;
+    for (std::size_t j = 0; j < instruments.size(); ++j) {
+      const int i = s.index_of(instruments[j]);
+      next.push_back(
+          i >= 0 ? s.latest.instruments[static_cast<std::size_t>(i)]
+                 : InstrumentCommand{instruments[j], InstrumentCommand::Mode::kPosition, 0.0, 0.0});
+      if (i >= 0 && i < 64 && j < 64 && ((s.latest.commanded >> i) & 1u))
+        mask |= std::uint64_t{1} << j;
+    }
+    s.latest.instruments = std::move(next);
+    s.latest.commanded = mask;
+    s.opt.instruments.assign(instruments.begin(), instruments.end());
+    s.replies.push_back(cat("done: ", describe(change)));
+    s.physics_log.push_back(cat("exchange done: ", describe(change)));
+  }
+  {
+    std::lock_guard lock(s.fb_mu);
+    s.fb_names.assign(instruments.begin(), instruments.end());
+    s.feedback.resize(s.fb_names.size());
+  }
+  s.n_exchanges.fetch_add(1);
+}
+
+void IgtlServer::exchange_refused(const InstrumentChange& change, const InputError& why) {
+  Impl& s = *impl_;
+  s.n_refused.fetch_add(1);
+  std::lock_guard lock(s.cmd_mu);
+  s.physics_log.push_back(cat("exchange refused: ", describe(change), ": ", why.what()));
+  s.replies.push_back(cat("refused: ", describe(change), ": ", why.what()));
+}
+
 void IgtlServer::publish(std::span<const HandFeedback> feedback) {
   Impl& s = *impl_;
   std::lock_guard lock(s.fb_mu);
   // By index: the scene's instruments are the device's, in the same order.
-  const std::size_t n = std::min(feedback.size(), s.fb_copy.size());
+  const std::size_t n = std::min(feedback.size(), s.fb_names.size());
   for (std::size_t i = 0; i < n; ++i) {
     const HandFeedback& f = feedback[i];
     // A non-finite force must not reach a motor.
@@ -594,6 +755,8 @@ IgtlStats IgtlServer::stats() const {
   st.messages_accepted = s.n_accepted.load();
   st.messages_dropped = s.n_dropped.load();
   st.feedback_sent = s.n_feedback.load();
+  st.exchanges = s.n_exchanges.load();
+  st.exchanges_refused = s.n_refused.load();
   st.connected = s.connected.load();
   return st;
 }
