@@ -126,6 +126,13 @@ void PhysicsThread::poll_commands() {
     used_seq_ = op_.seq;
   }
   if (!device_) return;
+  // A session changes no instruments yet (docs/trainer.md): an exchange the device asks for is
+  // refused and answered.
+  while (device_->poll_exchange(sim_.time(), change_))
+    device_->exchange_refused(
+        change_, InputError("trainer", "exchange",
+                            "expected no instrument exchange in a trainer session (not supported "
+                            "yet; vcsim run --device igtl takes them)"));
   device_->poll(sim_.time(), dev_cmds_);
   const std::uint64_t mask = device_->commanded_mask();
   for (std::size_t i = 0; i < cmds_.drive.size() && i < 64 && i < dev_cmds_.drive.size(); ++i)

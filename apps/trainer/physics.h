@@ -115,6 +115,7 @@ class PhysicsThread {
   double next_snapshot_ = 0.0;
   CommandRecording recording_;
   StepCommands cmds_, dev_cmds_;
+  InstrumentChange change_;  // one a device asks for (refused)
   std::vector<HandFeedback> feedback_;
   double fluoro_time_ = 0.0;
   int rewinds_ = 0, restarts_ = 0;

@@ -69,6 +69,11 @@ class RunDisplay : public RunObserver {
     }
     return true;
   }
+  void exchanged(const Simulator& sim, const InstrumentChange& change) override {
+    if (force_log_) force_log_->exchanged(sim, change);
+    if (!o_.quiet && !bar_)
+      std::cerr << "run: t = " << sim.time() << " s: exchange: " << describe(change) << "\n";
+  }
   void after_step(const Simulator& sim) override {
     if (force_log_) force_log_->after_step(sim);
     if (film_) film_->after_step(sim);
@@ -97,11 +102,18 @@ class RunDisplay : public RunObserver {
   std::string last_status_;
 };
 
-// True when one of the scenario's instruments is a balloon catheter or a stent system.
-bool has_balloon(const Scenario& sc) {
+// True when one of the scenario's instruments, or one the timeline adds, is a balloon catheter
+// or a stent system.
+bool has_balloon(const Scenario& sc, const ScriptedTimeline& tl) {
   const InstrumentCatalogue cat = load_catalogue(default_catalogue_dir());
+  auto balloon = [&](const std::string& entry) {
+    const InstrumentSpec* s = cat.find(entry);
+    return s && s->balloon;
+  };
   for (const ScenarioInstrument& si : sc.instruments)
-    if (const InstrumentSpec* s = cat.find(si.catalogue); s && s->balloon) return true;
+    if (balloon(si.catalogue)) return true;
+  for (const ScriptedTimeline::TimedChange& e : tl.exchanges())
+    if (e.change.kind == InstrumentChange::Kind::kAdd && balloon(e.change.catalogue)) return true;
   return false;
 }
 
@@ -135,7 +147,7 @@ int cmd_run(const RunOptions& o) {
   if (!device && !recording && !sc.timeline.empty()) {
     timeline = ScriptedTimeline::load(sc.base_dir / sc.timeline);
     timeline->bind(names);
-    if (timeline->inflates() && !has_balloon(sc))
+    if (timeline->inflates() && !has_balloon(sc, *timeline))
       throw InputError(timeline->source(), "balloon_pressure_atm",
                        "expected a balloon or stent catheter in the scenario to inflate");
   }

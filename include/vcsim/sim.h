@@ -16,6 +16,7 @@
 #include <atomic>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <iosfwd>
 #include <memory>
 #include <optional>
@@ -49,9 +50,12 @@ struct ScenarioInstrument {
   int max_nodes = 256;          // at most 512
   double tip_segment = 1.0e-3;  // m, most distal segment
 };
+// The instrument an input source's exchange adds (InstrumentChange::Kind::kAdd).
+ScenarioInstrument to_scenario_instrument(const InstrumentChange& change);
 
 // A place an instrument's distal tip should reach: in `segment`, at least `distance` m beyond
-// its ostium (where it leaves its parent's lumen; anatomy's ostium_distance).
+// its ostium (where it leaves its parent's lumen; anatomy's ostium_distance). An instrument added
+// during the run counts once it is in the scene; one removed before reaching it misses it.
 struct Landmark {
   std::string name;
   std::string instrument;
@@ -64,12 +68,25 @@ struct Landmark {
 // retry when stuck); `follower` keeps its tip `follow_gap` m behind the leader's tip (a catheter
 // over its wire), other instruments hold. kWithdraw: `instrument` is pulled back to `depth`
 // (0 = out of the patient), or to `depth` behind the depth of `relative_to`. kInject: the syringe
-// gives `flow` for `duration` s. kWait: nothing for `duration` s. kPlace: `instrument` (a balloon or
-// stent catheter on its wire) is advanced until the middle of its two markers lies on the middle
+// gives `flow` for `duration` s. kWait: nothing for `duration` s. kPlace: `instrument` (a balloon
+// or stent catheter on its wire) is advanced until the middle of its two markers lies on the middle
 // of lesion `lesion`, as seen along the route, within `tolerance`. kInflate: the indeflator ramps
 // to `pressure` over `ramp` s and holds it `duration` s. kDeflate: no pressure for `duration` s.
+// kAdd: `added` is brought into the scene (outside the patient, at the sheath); kRemove:
+// `instrument`, withdrawn by an earlier phase, leaves it (docs/scenarios.md, "Instrument
+// exchange").
 struct AutopilotPhase {
-  enum class Kind { kNavigate, kWithdraw, kInject, kWait, kPlace, kInflate, kDeflate };
+  enum class Kind {
+    kNavigate,
+    kWithdraw,
+    kInject,
+    kWait,
+    kPlace,
+    kInflate,
+    kDeflate,
+    kAdd,
+    kRemove
+  };
   Kind kind = Kind::kNavigate;
   std::string instrument;
   std::string goal_segment;
@@ -87,6 +104,7 @@ struct AutopilotPhase {
   double approach_speed = 0.01;  // m/s over the last 70 mm of the route (place: the coronary)
   double pressure = 0.0;     // Pa (inflate)
   double ramp = 3.0;         // s (inflate)
+  ScenarioInstrument added;  // (add) its name is `instrument`
 };
 const char* to_string(AutopilotPhase::Kind k);
 
@@ -188,6 +206,14 @@ struct Scenario {
 Scenario parse_scenario(std::string_view json_text, const std::string& source,
                         const std::filesystem::path& base_dir = ".");
 Scenario load_scenario(const std::filesystem::path& file);
+// Index of the instrument named `name` in `list`, or -1.
+int find_instrument_in(std::span<const ScenarioInstrument> list, std::string_view name);
+// Checks a list of instruments as a scenario declares them (the scenario's, or a scene's after an
+// exchange): names given and unique; `inside` names another instrument, itself inside none;
+// `over` names another instrument inside the same one. InputError naming `source` and, for
+// instrument i, field_of(i) + ".name", ".inside" or ".over".
+void validate_instruments(std::span<const ScenarioInstrument> list, const std::string& source,
+                          const std::function<std::string(int)>& field_of);
 // data/scenarios of the source tree ($VCSIM_SCENARIOS_DIR if set).
 std::filesystem::path default_scenarios_dir();
 // A scenario named on a command line: a file, or a name in default_scenarios_dir() ("default").
@@ -198,17 +224,38 @@ std::filesystem::path find_scenario(const std::string& name_or_path, const std::
 // ---------------------------------------------------------------------------------------------
 // Model
 
-struct SimModel {
-  Scenario scenario;  // as read: names, the autopilot's plan, landmarks, fluoroscopy, settings
-  VesselTree tree;    // at rest, lesions applied
+// The patient of a scene, built once per run and shared by every model of it (an exchange of
+// instruments builds a new model around the same anatomy).
+struct SimAnatomy {
+  VesselTree tree;  // at rest, lesions applied
   Lumen lumen;
   std::optional<CardiacMotion> motion;  // when the scenario beats and the anatomy has a heart
   AabbTree static_tree;                 // the lumen's tree when it does not beat (else empty)
-  std::vector<InstrumentSpec> specs;    // (instrument) from the catalogue
+};
+
+struct SimModel {
+  explicit SimModel(std::shared_ptr<const SimAnatomy> anatomy);
+
+  // As read, but for `instruments`: the scene's now (an exchange changes them). Names, the
+  // autopilot's plan, landmarks, fluoroscopy, settings.
+  Scenario scenario;
+  std::shared_ptr<const SimAnatomy> anatomy;
+  const VesselTree& tree;  // the anatomy's, named as the step and its readers use them
+  const Lumen& lumen;
+  const std::optional<CardiacMotion>& motion;
+  const AabbTree& static_tree;
+  // The catalogue the scene's instruments came from (and those an exchange adds).
+  std::shared_ptr<const InstrumentCatalogue> catalogue;
+  Sheath sheath;                      // the introducer sheath every instrument enters through
+  std::vector<InstrumentSpec> specs;  // (instrument) from the catalogue
   SolverModel solver;  // the instruments at the femoral sheath, their couplings, the splits
-  std::vector<std::pair<int, int>> landmark_ids;  // (landmark) instrument and segment index
+  // (landmark) instrument and segment index; instrument -1: not in the scene (one the autopilot
+  // adds later, or one removed)
+  std::vector<std::pair<int, int>> landmark_ids;
   std::vector<int> outer_of;  // (instrument) the instrument whose lumen holds it, -1: none
-  ProcedureModel procedure;   // balloons on the instruments, the lesions and how they open
+  // Balloons on the instruments (and those of removed instruments, kept with their stents), the
+  // lesions and how they open.
+  ProcedureModel procedure;
 
   double dt() const { return solver.dt(); }
   int num_instruments() const { return static_cast<int>(specs.size()); }
@@ -223,6 +270,17 @@ struct SimModel {
 // Builds the anatomy (cached lumen), the wall and the instruments at the sheath. Throws
 // InputError for a scenario that does not fit the anatomy or the catalogue.
 std::shared_ptr<const SimModel> build_sim_model(Scenario scenario);
+// The model of `from`'s scene with another list of instruments (an exchange; docs/architecture.md
+// "Instrument exchange"): the anatomy shared, the lesions and the introducer sheath kept (its
+// lumen widened only for a wider instrument), the instruments built as build_sim_model builds
+// them, balloons keeping their indices (a removed instrument's balloon stays, removed). Checks
+// the instruments as build_sim_model does (the rules that need the state are
+// Simulator::change_instruments'): InputError naming `source` and, for instrument i,
+// `field_of(i)`.
+std::shared_ptr<const SimModel> rebuild_sim_model(const SimModel& from,
+                                                  std::vector<ScenarioInstrument> instruments,
+                                                  const std::string& source,
+                                                  const std::function<std::string(int)>& field_of);
 
 // ---------------------------------------------------------------------------------------------
 // State
@@ -258,6 +316,9 @@ struct SimState {
   SimMetrics metrics;
   // For the procedure's random events (seeded by Scenario::seed; none draws from it yet).
   Random random;
+  // The model this is a state of, when a Simulator holds it: a snapshot carries it, so that a
+  // restore goes back across an exchange of instruments. Not part of the hash.
+  std::shared_ptr<const SimModel> model;
 
   double time() const { return solver.time; }  // s
   // FNV-1a over every value above.
@@ -267,6 +328,11 @@ struct SimState {
 };
 
 SimState make_sim_state(const SimModel& model);
+// `state` of model `from` carried to model `to` (rebuilt from it by an exchange): time, contrast,
+// landmarks, the random generator and the procedure (lesions, balloons by index) as they are;
+// each kept instrument's state (rods, drive, contact coherence) and metrics unchanged, matched
+// by name; an added instrument outside the patient at the sheath (parked once stepped).
+SimState carry_sim_state(const SimModel& from, const SimState& state, const SimModel& to);
 
 // ---------------------------------------------------------------------------------------------
 // Workspace and step
@@ -282,6 +348,10 @@ struct SimScratch;
 class SimWorkspace {
  public:
   explicit SimWorkspace(const SimModel& model);
+  // For a model sharing `old`'s anatomy (an exchange, a restore across one): the wall taken over
+  // from `old` (the beating lumen, the morphed static lumen, the stents as shown) instead of
+  // built again; `old` is left unusable.
+  SimWorkspace(const SimModel& model, SimWorkspace&& old);
   ~SimWorkspace();
   SimWorkspace(const SimWorkspace&) = delete;
   SimWorkspace& operator=(const SimWorkspace&) = delete;
@@ -348,8 +418,32 @@ class Simulator {
 
   // A copy of the whole state; restore() puts one back (of this model: InputError otherwise).
   // Restoring a snapshot and replaying the same commands gives the same states bit for bit.
+  // A snapshot carries its model (SimState::model): restoring one taken before an exchange of
+  // instruments goes back to that scene.
   SimState snapshot() const { return state_; }
   void restore(const SimState& snapshot);
+
+  // An instrument inserted less than this counts as withdrawn (its tip in the sheath's valve): a
+  // position command to 0 leaves a rounding's worth, the autopilot's withdrawal stops within
+  // 0.5 mm of its depth.
+  static constexpr double kWithdrawnDepth = 1e-3;  // m
+  // Instrument exchange (docs/scenarios.md): the scene's instruments become `instruments`, kept
+  // ones matched by name (the same catalogue entry and discretisation; their nesting may be
+  // declared anew), the others removed or added, before the next step. Refused with InputError
+  // naming `source` and field_of(i) for the list's instrument i (field_of(-1): the list as a
+  // whole), the simulation unchanged: removing an instrument still in the patient (inserted
+  // kWithdrawnDepth or more: withdraw it first) or one that another is kept inside or over, an
+  // unknown catalogue entry, a name twice, a kept instrument declared with another catalogue
+  // entry, no instrument left. Rebuilds the model's instruments (not the anatomy) and a
+  // workspace; allocates.
+  void change_instruments(std::vector<ScenarioInstrument> instruments,
+                          const std::string& source = "exchange",
+                          const std::function<std::string(int)>& field_of = {});
+  // One instrument added (after the others) or removed, as an input source asks for it; errors
+  // name change.source and change.field.
+  void exchange(const InstrumentChange& change);
+  // The scene's instrument names in its order.
+  std::vector<std::string> instrument_names() const;
 
   const SimModel& model() const { return *model_; }
   const std::shared_ptr<const SimModel>& shared_model() const { return model_; }
@@ -436,12 +530,19 @@ struct RunLoopStats {
   double max_lag = 0.0;         // s
   std::int64_t resyncs = 0;
   bool stopped = false;  // ended by RunLoopSettings::stop
+  int exchanges = 0;     // instrument exchanges applied
+  int refused_exchanges = 0;  // and refused (the input source was told)
 };
 
 // What a caller does around each step (film, progress, a controller's log).
 class RunObserver {
  public:
   virtual ~RunObserver() = default;
+  // After an exchange changed the scene's instruments (before the next step).
+  virtual void exchanged(const Simulator& sim, const InstrumentChange& change) {
+    (void)sim;
+    (void)change;
+  }
   // With the commands for the next step; false ends the run before that step.
   virtual bool before_step(const Simulator& sim, const StepCommands& commands) {
     (void)sim;
@@ -452,8 +553,10 @@ class RunObserver {
 };
 
 // Steps `sim` until settings.end_time, *settings.stop or the observer says so: per step, waits for
-// the wall clock (real time), polls `input` for the commands, steps, and publishes the hub forces
-// back to `input`. Allocates nothing per step once warm (besides what the observer does).
+// the wall clock (real time), applies the instrument exchanges `input` asks for (InputSource::
+// poll_exchange; each refusal handed back to it, each change to it and the observer), polls it
+// for the commands, steps, and publishes the hub forces back to `input`. Allocates nothing per
+// step once warm (besides what the observer does, and an exchange).
 RunLoopStats run_loop(Simulator& sim, InputSource& input, const RunLoopSettings& settings,
                       RunObserver* observer = nullptr);
 
@@ -500,15 +603,18 @@ void print_run_summary(std::ostream& out, const Simulator& sim, const RunReport&
                        const std::filesystem::path& metrics);
 
 // Every step's hand force and torque per instrument as CSV (`vcsim run --force-log`): time,
-// then depth (mm), force (N) and torque (N mm) of each instrument, under a header naming them.
+// then depth (mm), force (N) and torque (N mm) of each instrument, under a header naming them
+// (repeated after an exchange, naming the scene's instruments from there on).
 class ForceLog : public RunObserver {
  public:
   // Throws InputError("run", "--force-log", ...) when the file cannot be written.
   ForceLog(const std::filesystem::path& file, const SimModel& model);
   ~ForceLog() override;
   void after_step(const Simulator& sim) override;
+  void exchanged(const Simulator& sim, const InstrumentChange& change) override;
 
  private:
+  void header(const SimModel& model);
   struct File;
   std::unique_ptr<File> f_;
 };
@@ -526,6 +632,14 @@ class Autopilot {
   // The commands for the next step (one drive command per instrument).
   void command(const SimModel& model, const SimState& state, StepCommands& out);
   void command(const Simulator& sim, StepCommands& out) { command(sim.model(), sim.state(), out); }
+  // The exchange of instruments its current phase asks for (an add or remove phase): true with
+  // `out` filled, until the scene has changed (rebind) or the change is refused (refused).
+  bool exchange_wanted(InstrumentChange& out) const;
+  // The scene's instruments changed (its own exchange or another's): its per-instrument commands
+  // follow them by name, and a phase that asked for the change is done.
+  void rebind(const SimModel& model, const SimState& state);
+  // Its exchange was refused (the scene unchanged): it gives up, saying why.
+  void refused(const InputError& why);
   bool finished() const { return failed_ || phase_ >= static_cast<int>(plan_.size()); }
   bool failed() const { return failed_; }  // gave up (stuck after every retry)
   int phase() const { return phase_; }
@@ -557,6 +671,9 @@ class Autopilot {
     std::vector<double> route_s;
   };
   std::vector<AutopilotPhase> plan_;
+  std::vector<int> origin_;  // (plan phase) its index in the scenario's plan, -1: one it inserted
+  std::string source_;       // the scenario's file (errors)
+  std::vector<std::string> names_;  // the instruments the per-instrument arrays follow
   std::vector<Hold> holds_;
   int phase_ = -1;
   bool failed_ = false;
@@ -601,6 +718,9 @@ class AutopilotInput : public InputSource {
  public:
   AutopilotInput(Autopilot& pilot, const Simulator& sim) : pilot_(pilot), sim_(sim) {}
   void poll(double sim_time, StepCommands& out) override;
+  bool poll_exchange(double sim_time, InstrumentChange& out) override;
+  void exchanged(const InstrumentChange& change, std::span<const std::string> instruments) override;
+  void exchange_refused(const InstrumentChange& change, const InputError& why) override;
 
  private:
   Autopilot& pilot_;

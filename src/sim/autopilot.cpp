@@ -71,7 +71,10 @@ void tip_directions(const RodModel& md, const InstrumentState& in, double shaped
 
 }  // namespace
 
-Autopilot::Autopilot(const SimModel& md, const SimState& st) : plan_(md.scenario.autopilot) {
+Autopilot::Autopilot(const SimModel& md, const SimState& st)
+    : plan_(md.scenario.autopilot), source_(md.scenario.source) {
+  for (std::size_t k = 0; k < plan_.size(); ++k) origin_.push_back(static_cast<int>(k));
+  for (int i = 0; i < md.num_instruments(); ++i) names_.push_back(md.instrument_name(i));
   const int n = md.num_instruments();
   depth_.assign(n, 0.0);
   roll_.assign(n, 0.0);
@@ -105,6 +108,11 @@ void Autopilot::start_phase(const SimModel& md, const SimState& st) {
   relative_ = ph.relative_to.empty() ? -1 : sc.find_instrument(ph.relative_to);
   status_ = std::string(to_string(ph.kind)) + (ph.instrument.empty() ? "" : " " + ph.instrument);
   placed_since_ = -1.0;
+  if (ph.kind == AutopilotPhase::Kind::kAdd || ph.kind == AutopilotPhase::Kind::kRemove) {
+    // The runner makes the change before the next step (exchange_wanted); the hands hold.
+    if (ph.kind == AutopilotPhase::Kind::kAdd) status_ += " (" + ph.added.catalogue + ")";
+    return;
+  }
   if (ph.kind == AutopilotPhase::Kind::kPlace) {
     // The route to the lesion's middle, which the markers' midpoint is brought to.
     const VesselTree& tree = md.tree;
@@ -435,6 +443,9 @@ void Autopilot::command(const SimModel& md, const SimState& st, StepCommands& ou
           start_phase(md, st);
         }
         break;
+      case AutopilotPhase::Kind::kAdd:
+      case AutopilotPhase::Kind::kRemove:
+        break;  // the exchange is asked for before the next step (exchange_wanted)
     }
   }
   out.balloon_pressure = pressure_;
@@ -490,6 +501,7 @@ void Autopilot::command(const SimModel& md, const SimState& st, StepCommands& ou
         }
         again.push_back(seat);
         plan_.insert(plan_.begin() + phase_, again.begin(), again.end());
+        origin_.insert(origin_.begin() + phase_, again.size(), -1);
         holds_.erase(holds_.begin() + static_cast<std::ptrdiff_t>(hi));
         start_phase(md, st);
         break;
@@ -514,8 +526,94 @@ void Autopilot::command(const SimModel& md, const SimState& st, StepCommands& ou
   }
 }
 
+bool Autopilot::exchange_wanted(InstrumentChange& out) const {
+  if (finished()) return false;
+  const AutopilotPhase& ph = plan_[static_cast<std::size_t>(phase_)];
+  const int k = origin_[static_cast<std::size_t>(phase_)];
+  const std::string field = "autopilot[" + std::to_string(k) + "].instrument";
+  if (ph.kind == AutopilotPhase::Kind::kAdd) {
+    const ScenarioInstrument& si = ph.added;
+    out.kind = InstrumentChange::Kind::kAdd;
+    out.name = si.name;
+    out.catalogue = si.catalogue;
+    out.inside = si.inside;
+    out.over = si.over;
+    out.rim = si.rim;
+    out.max_nodes = si.max_nodes;
+    out.tip_segment = si.tip_segment;
+  } else if (ph.kind == AutopilotPhase::Kind::kRemove) {
+    out.kind = InstrumentChange::Kind::kRemove;
+    out.name = ph.instrument;
+  } else {
+    return false;
+  }
+  out.source = source_;
+  out.field = field;
+  return true;
+}
+
+void Autopilot::rebind(const SimModel& md, const SimState& st) {
+  // The per-instrument commands follow the instruments by name; one added starts where it is.
+  const int n = md.num_instruments();
+  std::vector<double> depth(n), roll(n), target(n);
+  std::vector<int> was(n, -1);
+  for (int j = 0; j < n; ++j) {
+    const auto it = std::find(names_.begin(), names_.end(), md.instrument_name(j));
+    was[j] = it == names_.end() ? -1 : static_cast<int>(it - names_.begin());
+    const DriveState& d = st.solver.instruments[j].drive;
+    depth[j] = was[j] >= 0 ? depth_[was[j]] : d.depth;
+    roll[j] = was[j] >= 0 ? roll_[was[j]] : d.roll;
+    target[j] = was[j] >= 0 ? roll_target_[was[j]] : d.roll;
+  }
+  auto now = [&](int i) {
+    if (i < 0) return -1;
+    const auto it = std::find(was.begin(), was.end(), i);
+    return it == was.end() ? -1 : static_cast<int>(it - was.begin());
+  };
+  leader_ = now(leader_);
+  follower_ = now(follower_);
+  relative_ = now(relative_);
+  placed_ = now(placed_);
+  for (Hold& h : holds_) h.instrument = now(h.instrument);
+  std::erase_if(holds_, [](const Hold& h) { return h.instrument < 0; });  // removed
+  depth_ = std::move(depth);
+  roll_ = std::move(roll);
+  roll_target_ = std::move(target);
+  names_.clear();
+  for (int j = 0; j < n; ++j) names_.push_back(md.instrument_name(j));
+  // A phase that asked for this change is done.
+  if (finished()) return;
+  const AutopilotPhase& ph = plan_[static_cast<std::size_t>(phase_)];
+  const bool present = md.instrument_index(ph.instrument) >= 0;
+  if ((ph.kind == AutopilotPhase::Kind::kAdd && present) ||
+      (ph.kind == AutopilotPhase::Kind::kRemove && !present)) {
+    ++phase_;
+    start_phase(md, st);
+  } else if (!present && !ph.instrument.empty() && ph.kind != AutopilotPhase::Kind::kAdd) {
+    failed_ = true;  // another source removed the instrument this phase drives
+    status_ = "gave up: '" + ph.instrument + "' was removed from the scene";
+  }
+}
+
+void Autopilot::refused(const InputError& why) {
+  failed_ = true;
+  status_ = std::string("gave up: ") + why.what();
+}
+
 void AutopilotInput::poll(double, StepCommands& out) {
   pilot_.command(sim_, out);
+}
+
+bool AutopilotInput::poll_exchange(double, InstrumentChange& out) {
+  return pilot_.exchange_wanted(out);
+}
+
+void AutopilotInput::exchanged(const InstrumentChange&, std::span<const std::string>) {
+  pilot_.rebind(sim_.model(), sim_.state());
+}
+
+void AutopilotInput::exchange_refused(const InstrumentChange&, const InputError& why) {
+  pilot_.refused(why);
 }
 
 }  // namespace vcsim

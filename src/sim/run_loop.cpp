@@ -46,6 +46,7 @@ RunLoopStats run_loop(Simulator& sim, InputSource& input, const RunLoopSettings&
   StepCommands cmds;
   cmds.reset(static_cast<std::size_t>(sim.num_instruments()));
   std::vector<HandFeedback> feedback;
+  InstrumentChange change;
   const double dt = sim.dt();
   while (sim.time() < settings.end_time - 1e-9) {
     if (settings.stop && settings.stop->load(std::memory_order_relaxed)) {
@@ -54,6 +55,19 @@ RunLoopStats run_loop(Simulator& sim, InputSource& input, const RunLoopSettings&
     }
     // The step computes the state at t + dt: not before the wall clock gets there.
     if (settings.realtime) pacer.wait(sim.time() + dt);
+    // Instrument exchanges asked for before this step, each applied (or refused) in turn.
+    while (input.poll_exchange(sim.time(), change)) {
+      try {
+        sim.exchange(change);
+      } catch (const InputError& e) {
+        ++stats.refused_exchanges;
+        input.exchange_refused(change, e);
+        continue;
+      }
+      ++stats.exchanges;
+      input.exchanged(change, sim.instrument_names());
+      if (observer) observer->exchanged(sim, change);
+    }
     input.poll(sim.time(), cmds);
     if (observer && !observer->before_step(sim, cmds)) break;
     sim.step(cmds);

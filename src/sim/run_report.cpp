@@ -146,9 +146,10 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
     std::size_t stent_k = 0;
     for (std::size_t b = 0; b < po.balloons.size(); ++b) {
       const BalloonOutcome& o = po.balloons[b];
-      const int inst = md.procedure.balloons[b].instrument;
-      nlohmann::json e = {{"instrument", sc.instruments[inst].name},
-                          {"catalogue", sc.instruments[inst].catalogue},
+      const BalloonModel& bm = md.procedure.balloons[b];
+      nlohmann::json e = {{"instrument", bm.label},
+                          {"catalogue", bm.catalogue},
+                          {"removed", o.removed},
                           {"max_pressure_atm", o.max_pressure / kAtm},
                           {"balloon_to_artery_ratio", o.max_ratio},
                           {"ruptured", o.ruptured},
@@ -167,16 +168,19 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
     }
     nlohmann::json events = nlohmann::json::array();
     for (const ProcedureEvent& ev : sim.state().procedure.events)
-      events.push_back({{"time_s", ev.time},
-                        {"event", to_string(ev.kind)},
-                        {"instrument", ev.balloon >= 0
-                                           ? nlohmann::json(sc.instruments[md.procedure.balloons[
-                                                 static_cast<std::size_t>(ev.balloon)].instrument]
-                                                                .name)
-                                           : nlohmann::json(nullptr)}});
+      events.push_back(
+          {{"time_s", ev.time},
+           {"event", to_string(ev.kind)},
+           {"instrument",
+            ev.balloon >= 0
+                ? nlohmann::json(md.procedure.balloons[static_cast<std::size_t>(ev.balloon)].label)
+                : nlohmann::json(nullptr)}});
     j["procedure"] = {{"lesions", lesions}, {"balloons", balloons}, {"events", events}};
   }
-  nlohmann::json input = {{"type", r.input_type}, {"realtime", r.realtime}};
+  nlohmann::json input = {{"type", r.input_type},
+                          {"realtime", r.realtime},
+                          {"exchanges", r.loop.exchanges},
+                          {"exchanges_refused", r.loop.refused_exchanges}};
   if (r.input_type == "igtl") {
     input["address"] = r.device_address;
     input["port"] = r.device_port;
@@ -244,13 +248,21 @@ ForceLog::ForceLog(const std::filesystem::path& file, const SimModel& model)
   f_->out.open(file);
   if (!f_->out)
     throw InputError("run", "--force-log", "expected a writable file, got '" + file.string() + "'");
+  header(model);
+}
+
+ForceLog::~ForceLog() = default;
+
+void ForceLog::header(const SimModel& model) {
   f_->out << "time_s";
   for (const ScenarioInstrument& si : model.scenario.instruments)
     f_->out << ',' << si.name << "_depth_mm," << si.name << "_force_n," << si.name << "_torque_nmm";
   f_->out << '\n';
 }
 
-ForceLog::~ForceLog() = default;
+void ForceLog::exchanged(const Simulator& sim, const InstrumentChange&) {
+  header(sim.model());  // the rows after it have the scene's instruments now
+}
 
 void ForceLog::after_step(const Simulator& sim) {
   char buf[64];

@@ -1,11 +1,13 @@
 // The scenario format (data/scenarios/*.json, docs/scenarios.md): units in key names, converted
 // to SI at load; unknown keys are refused so that a typo is not silently ignored.
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
 
 #include "json_fields.h"
+#include "plan.h"
 #include "vcsim/sim.h"
 #include "vcsim/units.h"
 
@@ -15,6 +17,24 @@ namespace {
 
 using internal::JsonFields;
 using Json = internal::Json;
+
+// An instrument as instruments[] declares it (and an autopilot's add phase).
+ScenarioInstrument parse_instrument(JsonFields& g) {
+  ScenarioInstrument si;
+  si.name = g.text("name");
+  si.catalogue = g.text("catalogue");
+  si.inside = g.text_or("inside", "");
+  si.over = g.text_or("over", "");
+  if (g.has("rim")) {
+    if (si.inside.empty())
+      g.fail("rim", "expected only with \"inside\" (the outer instrument's rim)");
+    si.rim = g.boolean_or("rim", true);
+  }
+  si.max_nodes = g.integer_or("max_nodes", 16, 512, 256);
+  si.tip_segment = g.in_range_or("tip_segment_mm", 0.1, 20.0, 1.0) * kMm;
+  g.finish();
+  return si;
+}
 
 AutopilotPhase parse_phase(const Json& j, const std::string& src, const std::string& path) {
   AutopilotPhase p;
@@ -57,9 +77,19 @@ AutopilotPhase parse_phase(const Json& j, const std::string& src, const std::str
   } else if (action == "deflate") {
     p.kind = AutopilotPhase::Kind::kDeflate;
     p.duration = f.positive_or("duration_s", 3.0);
+  } else if (action == "add") {
+    p.kind = AutopilotPhase::Kind::kAdd;
+    JsonFields g = f.object("instrument");
+    p.added = parse_instrument(g);
+    p.instrument = p.added.name;
+  } else if (action == "remove") {
+    p.kind = AutopilotPhase::Kind::kRemove;
+    p.instrument = f.text("instrument");
   } else {
-    f.fail("action", "expected navigate, withdraw, inject, wait, place, inflate or deflate, got '" +
-                         action + "'");
+    f.fail("action",
+           "expected navigate, withdraw, inject, wait, place, inflate, deflate, add or remove, "
+           "got '" +
+               action + "'");
   }
   p.speed = f.in_range_or("speed_mm_s", 0.0, 500.0, 100.0) * kMm;
   // Keys that the action does not use (a "goal" on a withdrawal) are refused here.
@@ -85,6 +115,10 @@ const char* to_string(AutopilotPhase::Kind k) {
       return "inflate";
     case AutopilotPhase::Kind::kDeflate:
       return "deflate";
+    case AutopilotPhase::Kind::kAdd:
+      return "add";
+    case AutopilotPhase::Kind::kRemove:
+      return "remove";
   }
   return "?";
 }
@@ -97,9 +131,111 @@ void ContrastSettings::validate(const std::string& source) const {
 }
 
 int Scenario::find_instrument(std::string_view n) const {
-  for (std::size_t i = 0; i < instruments.size(); ++i)
-    if (instruments[i].name == n) return static_cast<int>(i);
+  return find_instrument_in(instruments, n);
+}
+
+int find_instrument_in(std::span<const ScenarioInstrument> list, std::string_view name) {
+  for (std::size_t i = 0; i < list.size(); ++i)
+    if (list[i].name == name) return static_cast<int>(i);
   return -1;
+}
+
+void validate_instruments(std::span<const ScenarioInstrument> list, const std::string& src,
+                          const std::function<std::string(int)>& field_of) {
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const std::string field = field_of(static_cast<int>(i));
+    if (list[i].name.empty()) throw InputError(src, field + ".name", "expected a name");
+    if (find_instrument_in(list.first(i), list[i].name) >= 0)
+      throw InputError(src, field + ".name",
+                       "expected a unique name, '" + list[i].name + "' repeats");
+  }
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const std::string& in = list[i].inside;
+    if (in.empty()) continue;
+    const std::string field = field_of(static_cast<int>(i)) + ".inside";
+    const int o = find_instrument_in(list, in);
+    if (o < 0 || o == static_cast<int>(i))
+      throw InputError(src, field, "expected the name of another instrument, got '" + in + "'");
+    if (!list[o].inside.empty())
+      throw InputError(src, field,
+                       "expected an outermost instrument ('" + in + "' is itself inside '" +
+                           list[o].inside + "')");
+  }
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const ScenarioInstrument& si = list[i];
+    if (si.over.empty()) continue;
+    const std::string field = field_of(static_cast<int>(i)) + ".over";
+    const int w = find_instrument_in(list, si.over);
+    if (w < 0 || w == static_cast<int>(i))
+      throw InputError(src, field,
+                       "expected the name of another instrument, got '" + si.over + "'");
+    if (list[w].inside != si.inside)
+      throw InputError(src, field,
+                       "expected a wire in the same outer instrument as this one ('" + si.over +
+                           "' is inside '" + list[w].inside + "', this inside '" + si.inside +
+                           "')");
+  }
+}
+
+namespace internal {
+
+void walk_plan(
+    const Scenario& sc,
+    const std::function<void(std::size_t, const std::vector<ScenarioInstrument>&)>& visit) {
+  std::vector<ScenarioInstrument> scene = sc.instruments;
+  for (std::size_t k = 0; k < sc.autopilot.size(); ++k) {
+    const AutopilotPhase& ph = sc.autopilot[k];
+    const std::string path = index_path("autopilot", k);
+    const bool add = ph.kind == AutopilotPhase::Kind::kAdd;
+    if (add) {
+      if (find_instrument_in(scene, ph.instrument) >= 0)
+        throw InputError(sc.source, path + ".instrument.name",
+                         "expected a name not in the scene then, got '" + ph.instrument + "'");
+      std::vector<ScenarioInstrument> next = scene;
+      next.push_back(ph.added);
+      validate_instruments(next, sc.source, [&](int i) {
+        return i + 1 == static_cast<int>(next.size()) ? path + ".instrument"
+                                                      : index_path("instruments", i);
+      });
+    }
+    for (const std::string* name : {&ph.instrument, &ph.follower, &ph.relative_to})
+      if (!add && !name->empty() && find_instrument_in(scene, *name) < 0)
+        throw InputError(
+            sc.source, path,
+            "expected an instrument of the scenario (in the scene then), got '" + *name + "'");
+    visit(k, scene);
+    if (add) scene.push_back(ph.added);
+    if (ph.kind == AutopilotPhase::Kind::kRemove) {
+      const int r = find_instrument_in(scene, ph.instrument);
+      scene.erase(scene.begin() + r);
+      for (const ScenarioInstrument& si : scene)
+        if (si.inside == ph.instrument || si.over == ph.instrument)
+          throw InputError(
+              sc.source, path + ".instrument",
+              "expected an instrument nothing is inside or over ('" + si.name + "' is)");
+    }
+  }
+}
+
+std::vector<std::string> plan_additions(const Scenario& sc) {
+  std::vector<std::string> names;
+  for (const AutopilotPhase& ph : sc.autopilot)
+    if (ph.kind == AutopilotPhase::Kind::kAdd) names.push_back(ph.instrument);
+  return names;
+}
+
+}  // namespace internal
+
+ScenarioInstrument to_scenario_instrument(const InstrumentChange& c) {
+  ScenarioInstrument si;
+  si.name = c.name;
+  si.catalogue = c.catalogue;
+  si.inside = c.inside;
+  si.over = c.over;
+  si.rim = c.rim;
+  si.max_nodes = c.max_nodes;
+  si.tip_segment = c.tip_segment;
+  return si;
 }
 
 Scenario parse_scenario(std::string_view text, const std::string& src,
@@ -147,49 +283,10 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   if (insts.empty()) f.fail("instruments", "expected at least one instrument");
   for (std::size_t i = 0; i < insts.size(); ++i) {
     JsonFields g(insts[i], src, internal::index_path("instruments", i));
-    ScenarioInstrument si;
-    si.name = g.text("name");
-    si.catalogue = g.text("catalogue");
-    si.inside = g.text_or("inside", "");
-    si.over = g.text_or("over", "");
-    if (g.has("rim")) {
-      if (si.inside.empty())
-        g.fail("rim", "expected only with \"inside\" (the outer instrument's rim)");
-      si.rim = g.boolean_or("rim", true);
-    }
-    si.max_nodes = g.integer_or("max_nodes", 16, 512, 256);
-    si.tip_segment = g.in_range_or("tip_segment_mm", 0.1, 20.0, 1.0) * kMm;
-    g.finish();
-    if (sc.find_instrument(si.name) >= 0)
-      g.fail("name", "expected a unique name, '" + si.name + "' repeats");
-    sc.instruments.push_back(si);
+    sc.instruments.push_back(parse_instrument(g));
   }
-  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
-    const std::string& in = sc.instruments[i].inside;
-    if (in.empty()) continue;
-    const std::string field = internal::index_path("instruments", i) + ".inside";
-    const int o = sc.find_instrument(in);
-    if (o < 0 || o == static_cast<int>(i))
-      throw InputError(src, field, "expected the name of another instrument, got '" + in + "'");
-    if (!sc.instruments[o].inside.empty())
-      throw InputError(src, field,
-                       "expected an outermost instrument ('" + in + "' is itself inside '" +
-                           sc.instruments[o].inside + "')");
-  }
-  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
-    const ScenarioInstrument& si = sc.instruments[i];
-    if (si.over.empty()) continue;
-    const std::string field = internal::index_path("instruments", i) + ".over";
-    const int w = sc.find_instrument(si.over);
-    if (w < 0 || w == static_cast<int>(i))
-      throw InputError(src, field,
-                       "expected the name of another instrument, got '" + si.over + "'");
-    if (sc.instruments[w].inside != si.inside)
-      throw InputError(src, field,
-                       "expected a wire in the same outer instrument as this one ('" + si.over +
-                           "' is inside '" + sc.instruments[w].inside + "', this inside '" +
-                           si.inside + "')");
-  }
+  validate_instruments(sc.instruments, src,
+                       [](int i) { return internal::index_path("instruments", i); });
   if (f.has("targets")) {
     JsonFields g = f.object("targets");
     if (g.has("residual_stenosis_percent"))
@@ -227,16 +324,12 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   }
   if (f.has("autopilot")) {
     const Json& ap = f.array("autopilot");
-    for (std::size_t i = 0; i < ap.size(); ++i) {
-      const std::string path = internal::index_path("autopilot", i);
-      AutopilotPhase ph = parse_phase(ap[i], src, path);
-      for (const std::string* name : {&ph.instrument, &ph.follower, &ph.relative_to})
-        if (!name->empty() && sc.find_instrument(*name) < 0)
-          throw InputError(src, path,
-                           "expected an instrument of the scenario, got '" + *name + "'");
-      sc.autopilot.push_back(ph);
-    }
+    for (std::size_t i = 0; i < ap.size(); ++i)
+      sc.autopilot.push_back(parse_phase(ap[i], src, internal::index_path("autopilot", i)));
+    // Each phase names instruments in the scene when it starts (add and remove phases change it).
+    internal::walk_plan(sc, [](std::size_t, const std::vector<ScenarioInstrument>&) {});
   }
+  const std::vector<std::string> added = internal::plan_additions(sc);
   if (f.has("landmarks")) {
     const Json& lm = f.array("landmarks");
     for (std::size_t i = 0; i < lm.size(); ++i) {
@@ -244,8 +337,11 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
       Landmark l;
       l.name = g.text("name");
       l.instrument = g.text("instrument");
-      if (sc.find_instrument(l.instrument) < 0)
-        g.fail("instrument", "expected an instrument of the scenario, got '" + l.instrument + "'");
+      if (sc.find_instrument(l.instrument) < 0 &&
+          std::find(added.begin(), added.end(), l.instrument) == added.end())
+        g.fail("instrument",
+               "expected an instrument of the scenario (or one its autopilot adds), got '" +
+                   l.instrument + "'");
       l.segment = g.text("segment");
       l.distance = g.nonnegative_or("distance_mm", 0.0) * kMm;
       g.finish();

@@ -47,7 +47,9 @@ class ProcedureWall final : public VesselWall {
 };
 
 struct SimScratch {
-  explicit SimScratch(const SimModel& model);
+  // With `reuse` (a workspace of a model with the same anatomy, an exchange apart): its wall
+  // taken over instead of built again, leaving `reuse` unusable.
+  SimScratch(const SimModel& model, SimScratch* reuse);
   // The lumen: the beating lumen's patches, moved lazily to each fine step's time where the
   // instruments can reach them (a pure function of that time and the lesions' opening), or a
   // static tree's queries (the workspace's own mesh and tree when lesions can open).

@@ -1,6 +1,6 @@
-// The simulation of a scenario: its model (anatomy, wall, instruments from the catalogue at the
-// femoral sheath), its state and workspace, and the sim step of docs/architecture.md: the
-// instruments (solver_step), contrast transport, metrics and landmarks (docs/scenarios.md).
+// The simulation of a scenario: its state and workspace (the model is model.cpp's), and the sim
+// step of docs/architecture.md: the instruments (solver_step), contrast transport, metrics and
+// landmarks (docs/scenarios.md).
 #include <algorithm>
 #include <cassert>
 #include <cmath>
@@ -19,225 +19,7 @@ constexpr double kCardiacOutput = 83.0e-6;  // m^3/s
 constexpr double kContrastFill = 0.1;       // s, time constant of filling a segment once it arrives
 constexpr double kLandmarkInterval = 0.005;  // s between landmark checks
 
-VesselTree load_anatomy(const Scenario& sc) {
-  const std::string& a = sc.anatomy;
-  const bool file = a.size() > 5 && a.substr(a.size() - 5) == ".json";
-  if (!file) return default_patient(patient_variant_from_string(a, sc.source + ": anatomy"));
-  const std::filesystem::path p = sc.base_dir / a;
-  if (!std::filesystem::exists(p))
-    throw InputError(sc.source, "anatomy",
-                     "expected an anatomy file, '" + p.string() + "' does not exist");
-  return load_vessel_tree(p.string());
-}
-
-int segment_named(const VesselTree& t, const std::string& name, const std::string& src,
-                  const std::string& field) {
-  const int s = t.find(name);
-  if (s < 0) throw InputError(src, field, "no segment named '" + name + "' in the anatomy");
-  return s;
-}
-
-void hash_tree(StateHasher& h, const VesselTree& t) {
-  for (const VesselSegment& s : t.segments) {
-    h.add_value(static_cast<int>(s.kind));
-    h.add_value(s.parent);
-    h.add(s.points);
-    h.add(s.radii);
-    h.add_value(s.closed_end);
-  }
-  for (const Lesion& l : t.lesions)
-    for (double v : {l.distance, l.length, l.diameter_reduction, l.eccentricity, l.angle})
-      h.add_value(v);
-  h.add_value(t.access.segment);
-  h.add_value(t.access.distance);
-  h.add_value(t.open_start);
-}
-
 }  // namespace
-
-// --- model ---------------------------------------------------------------------------------------
-
-std::shared_ptr<const SimModel> build_sim_model(Scenario scenario) {
-  auto model = std::make_shared<SimModel>();
-  SimModel& md = *model;
-  md.scenario = std::move(scenario);
-  const Scenario& sc = md.scenario;
-  const std::string& src = sc.source;
-  md.tree = load_anatomy(sc);
-  // Check every name before the expensive build, and resolve it to an index once.
-  for (std::size_t i = 0; i < sc.landmarks.size(); ++i) {
-    const int seg = segment_named(md.tree, sc.landmarks[i].segment, src,
-                                  "landmarks[" + std::to_string(i) + "].segment");
-    const int inst = sc.find_instrument(sc.landmarks[i].instrument);
-    if (inst < 0)
-      throw InputError(
-          src, "landmarks[" + std::to_string(i) + "].instrument",
-          "expected an instrument of the scenario, got '" + sc.landmarks[i].instrument + "'");
-    md.landmark_ids.push_back({inst, seg});
-  }
-  for (std::size_t i = 0; i < sc.autopilot.size(); ++i) {
-    const AutopilotPhase& ph = sc.autopilot[i];
-    const std::string field = "autopilot[" + std::to_string(i) + "]";
-    if (ph.kind == AutopilotPhase::Kind::kNavigate)
-      segment_named(md.tree, ph.goal_segment, src, field + ".goal.segment");
-    if (ph.kind == AutopilotPhase::Kind::kPlace &&
-        (ph.lesion < 0 || ph.lesion >= static_cast<int>(md.tree.lesions.size())))
-      throw InputError(src, field + ".lesion",
-                       "expected a lesion of the anatomy (it has " +
-                           std::to_string(md.tree.lesions.size()) + ")");
-  }
-  const std::filesystem::path cat_dir = default_catalogue_dir();
-  const InstrumentCatalogue cat = load_catalogue(cat_dir);
-  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
-    const InstrumentSpec* s = cat.find(sc.instruments[i].catalogue);
-    if (!s)
-      throw InputError(src, "instruments[" + std::to_string(i) + "].catalogue",
-                       "expected an entry of " + cat_dir.string() + ", got '" +
-                           sc.instruments[i].catalogue + "'");
-    md.specs.push_back(*s);
-  }
-  md.outer_of.assign(sc.instruments.size(), -1);
-  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
-    const int w = sc.find_instrument(sc.instruments[i].over);
-    if (w >= 0 && md.specs[i].inner_diameter <= md.specs[w].outer_diameter)
-      throw InputError(src, "instruments[" + std::to_string(i) + "].over",
-                       "expected a wire thinner than the instrument's lumen: '" + md.specs[i].name +
-                           "' has ID " + std::to_string(md.specs[i].inner_diameter / kMm) +
-                           " mm, '" + md.specs[w].name + "' OD " +
-                           std::to_string(md.specs[w].outer_diameter / kMm) + " mm");
-    const int o = sc.find_instrument(sc.instruments[i].inside);
-    if (o < 0) continue;
-    if (md.specs[o].inner_diameter <= md.specs[i].outer_diameter)
-      throw InputError(src, "instruments[" + std::to_string(i) + "].inside",
-                       "expected a lumen wider than the instrument: '" + md.specs[o].name +
-                           "' has ID " + std::to_string(md.specs[o].inner_diameter / kMm) +
-                           " mm, '" + md.specs[i].name + "' OD " +
-                           std::to_string(md.specs[i].outer_diameter / kMm) + " mm");
-    md.outer_of[i] = o;
-  }
-
-  md.lumen = build_lumen(md.tree);
-  if (sc.beating && md.tree.heart) {
-    md.motion.emplace(md.tree, sc.motion);
-  } else {
-    md.static_tree.build(md.lumen.mesh, AabbTreeSettings::for_static_mesh());
-  }
-
-  // The sheath: at the tree's access, pointing along the vessel toward the heart (retrograde,
-  // against the centreline's flow direction).
-  const VesselSegment& acc = md.tree.segments[md.tree.access.segment];
-  Sheath sheath;
-  sheath.access_point = point_at(acc, md.tree.access.distance);
-  const Vec3 axis = -tangent_at(acc, md.tree.access.distance);
-  sheath.frame = Quat::FromTwoVectors(Vec3::UnitZ(), axis).normalized();
-  // The introducer sheath: its straight part in the femoral artery holds what passes through it
-  // on the axis (a 6F sheath for a 6F catheter: 0.2 mm of play across).
-  sheath.length = sc.sheath_length;
-  double widest = 0.0;
-  for (const InstrumentSpec& sp : md.specs) widest = std::max(widest, sp.outer_diameter);
-  sheath.inner_radius = 0.5 * widest + 0.1e-3;
-
-  SolverModel& sv = md.solver;
-  SolverSettings s;
-  s.rod.dt = sc.dt;
-  s.collisions = true;
-  s.hand_force = sc.feedback.hand_force;
-  s.feedback_cutoff_hz = sc.feedback.cutoff_hz;
-  sv.settings = {s};
-  for (std::size_t i = 0; i < md.specs.size(); ++i) {
-    Discretisation disc;
-    disc.max_nodes = sc.instruments[i].max_nodes;
-    disc.tip_segment = sc.instruments[i].tip_segment;
-    RodDef def = to_rod_def(md.specs[i], disc);
-    def.base = BoundaryKind::kFree;
-    def.tip = BoundaryKind::kFree;
-    sv.instruments.push_back(make_instrument_model(
-        def, sheath,
-        ContactMaterial{md.specs[i].friction.vessel_static, md.specs[i].friction.vessel_dynamic}));
-  }
-  // A wire an instrument rides on runs in that instrument's lumen first (it lies inside the
-  // guide both are in), then in the guide's.
-  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
-    const int w = sc.find_instrument(sc.instruments[i].over);
-    if (w < 0) continue;
-    CouplingModel c;
-    c.inner = w;
-    c.outer = static_cast<int>(i);
-    c.mu = md.specs[w].friction.lumen;
-    c.rim = sc.instruments[w].rim;
-    sv.couplings.push_back(c);
-  }
-  for (std::size_t i = 0; i < sc.instruments.size(); ++i) {
-    if (md.outer_of[i] < 0) continue;
-    CouplingModel c;
-    c.inner = static_cast<int>(i);
-    c.outer = md.outer_of[i];
-    c.mu = md.specs[i].friction.lumen;
-    c.rim = sc.instruments[i].rim;
-    sv.couplings.push_back(c);
-  }
-  // Quasi-static (physics.md 5.4): each node and frame only as heavy as the explicit step needs,
-  // for the scenario's step and for each split of it a fast hand may use.
-  make_quasi_static(sv, std::max(1, sc.fine_steps));
-  sv.substeps.speed = sc.fine_step_speed;
-  sv.substeps.travel = sc.fine_step_travel;
-  sv.substeps.jump = sc.fine_step_jump;
-  sv.substeps.hold = sc.fine_step_hold;
-  sv.validate(src);
-  if (!sc.lesions.empty() && sc.lesions.size() != md.tree.lesions.size())
-    throw InputError(src, "lesions",
-                     "expected one entry per lesion of the anatomy (" +
-                         std::to_string(md.tree.lesions.size()) + "), got " +
-                         std::to_string(sc.lesions.size()));
-  md.procedure = make_procedure_model(md.tree, md.lumen, sv, md.specs, sc.lesions);
-  // What the autopilot's plan does with balloons needs them.
-  for (std::size_t i = 0; i < sc.autopilot.size(); ++i) {
-    const AutopilotPhase& ph = sc.autopilot[i];
-    const std::string field = "autopilot[" + std::to_string(i) + "]";
-    if (ph.kind == AutopilotPhase::Kind::kPlace &&
-        !md.specs[static_cast<std::size_t>(sc.find_instrument(ph.instrument))].balloon)
-      throw InputError(src, field + ".instrument",
-                       "expected a balloon or stent catheter, got '" + ph.instrument + "'");
-    if ((ph.kind == AutopilotPhase::Kind::kInflate) && md.procedure.balloons.empty())
-      throw InputError(src, field, "expected a balloon or stent catheter in the scenario");
-  }
-  return model;
-}
-
-std::uint64_t SimModel::hash() const {
-  StateHasher h;
-  h.add_value(solver.hash());
-  hash_tree(h, tree);
-  h.add(lumen.mesh.vertices);
-  for (const auto& t : lumen.mesh.triangles)
-    for (int v : t) h.add_value(v);
-  h.add(lumen.mesh.normals);
-  for (const AabbNode& n : static_tree.nodes()) {
-    h.add_value(n.box.lo);
-    h.add_value(n.box.hi);
-    h.add_value(n.first);
-    h.add_value(n.count);
-  }
-  h.add(static_tree.triangle_order());
-  h.add_value(motion.has_value());
-  if (motion) {
-    const MotionSettings& m = motion->settings();
-    for (double v :
-         {m.heart_rate_bpm, m.translation, m.radial_contraction, m.longitudinal_contraction,
-          m.twist, m.respiratory_rate_per_min, m.respiratory_shift, m.respiratory_rotation})
-      h.add_value(v);
-    h.add_value(m.respiration);
-  }
-  const ContrastSettings& c = scenario.contrast;
-  for (double v : {c.blood_flow, c.blood_speed, c.washout, c.concentration}) h.add_value(v);
-  for (const auto& [inst, seg] : landmark_ids) {
-    h.add_value(inst);
-    h.add_value(seg);
-  }
-  for (const Landmark& l : scenario.landmarks) h.add_value(l.distance);
-  h.add(outer_of);
-  return h.value();
-}
 
 // --- state ---------------------------------------------------------------------------------------
 
@@ -368,7 +150,10 @@ std::size_t SimState::bytes() const {
 
 // --- workspace -----------------------------------------------------------------------------------
 
-SimWorkspace::SimWorkspace(const SimModel& md) : s_(std::make_unique<internal::SimScratch>(md)) {}
+SimWorkspace::SimWorkspace(const SimModel& md)
+    : s_(std::make_unique<internal::SimScratch>(md, nullptr)) {}
+SimWorkspace::SimWorkspace(const SimModel& md, SimWorkspace&& old)
+    : s_(std::make_unique<internal::SimScratch>(md, old.s_.get())) {}
 SimWorkspace::~SimWorkspace() = default;
 SolverWorkspace& SimWorkspace::solver() {
   return s_->solver;
@@ -380,9 +165,35 @@ VesselWall& SimWorkspace::wall() {
   return s_->wall;
 }
 
-internal::SimScratch::SimScratch(const SimModel& md) : solver(md.solver) {
+internal::SimScratch::SimScratch(const SimModel& md, SimScratch* reuse) : solver(md.solver) {
   const LesionMorph& morph = md.procedure.morph;
   const bool morphs = !morph.vertices.empty();
+  const std::size_t balloons = md.procedure.balloons.size();
+  if (reuse) {
+    // The same anatomy: its wall as the old workspace last showed it (the lumen at the lesions'
+    // opening, the stents' tubes by balloon index, which an exchange keeps).
+    beating = std::move(reuse->beating);
+    beating_wall = std::move(reuse->beating_wall);
+    static_mesh = std::move(reuse->static_mesh);
+    static_tree = std::move(reuse->static_tree);
+    if (beating_wall) {
+      wall.lumen = beating_wall.get();
+    } else {
+      static_wall = morphs ? std::make_unique<StaticWall>(static_mesh, static_tree)
+                           : std::make_unique<StaticWall>(md.lumen.mesh, md.static_tree);
+      wall.lumen = static_wall.get();
+    }
+    wall.motion = md.motion ? &*md.motion : nullptr;
+    wall.stents = std::move(reuse->wall.stents);
+    wall.stents.resize(balloons);
+    shown_stents = std::move(reuse->shown_stents);
+    shown_stents.resize(balloons, 0);
+    morph_triangles = std::move(reuse->morph_triangles);
+    shown_opening = std::move(reuse->shown_opening);
+    morphed = std::move(reuse->morphed);
+    old_tips.resize(md.solver.instruments.size());
+    return;
+  }
   if (md.motion) {
     beating = std::make_unique<BeatingLumen>(md.lumen.mesh, *md.motion, morph.vertices,
                                              md.procedure.morph_limit);
@@ -413,8 +224,8 @@ internal::SimScratch::SimScratch(const SimModel& md) : solver(md.solver) {
   zero.t.assign(kLesionSamples, 0.0);
   shown_opening.assign(md.tree.lesions.size(), zero);
   morphed.resize(morph.vertices.size());
-  shown_stents.assign(md.procedure.balloons.size(), 0);
-  wall.stents.resize(md.procedure.balloons.size());
+  shown_stents.assign(balloons, 0);
+  wall.stents.resize(balloons);
   old_tips.resize(md.solver.instruments.size());
 }
 
@@ -483,7 +294,8 @@ void check_landmarks(const SimModel& md, SimState& st) {
     LandmarkRecord& rec = m.landmarks[k];
     if (rec.reached) continue;
     const auto [i, seg] = md.landmark_ids[k];
-    if (st.solver.instruments[i].drive.depth <= 0.0) continue;
+    // (an instrument not in the scene: added later, or removed before it got there)
+    if (i < 0 || st.solver.instruments[i].drive.depth <= 0.0) continue;
     const TreeHit h = tip_location(md, st, i);
     if (h.loc.segment == seg &&
         h.loc.distance >= ostium_distance(md.tree, seg) + md.scenario.landmarks[k].distance &&
@@ -562,7 +374,9 @@ Simulator::Simulator(Scenario scenario) : Simulator(build_sim_model(std::move(sc
 Simulator::Simulator(std::shared_ptr<const SimModel> model)
     : model_(std::move(model)),
       state_(make_sim_state(*model_)),
-      ws_(std::make_unique<SimWorkspace>(*model_)) {}
+      ws_(std::make_unique<SimWorkspace>(*model_)) {
+  state_.model = model_;
+}
 
 Simulator::~Simulator() = default;
 
@@ -606,6 +420,16 @@ void Simulator::step(const StepCommands& cmds) {
 }
 
 void Simulator::restore(const SimState& snap) {
+  if (snap.model && snap.model != model_ && snap.model->anatomy == model_->anatomy) {
+    // A snapshot of this run's scene before (or after) an exchange of instruments: back to that
+    // scene, the wall taken over. (A state of another run's model is only checked for its sizes
+    // below, as ever.)
+    auto ws = std::make_unique<SimWorkspace>(*snap.model, std::move(*ws_));
+    model_ = snap.model;
+    ws_ = std::move(ws);
+    state_ = make_sim_state(*model_);
+    state_.model = model_;
+  }
   const SimModel& md = *model_;
   auto refuse = [](const std::string& why) {
     throw InputError("snapshot", "state",
@@ -631,6 +455,7 @@ void Simulator::restore(const SimState& snap) {
       snap.metrics.tip_path.size() != md.solver.instruments.size())
     refuse("metrics");
   state_ = snap;  // same sizes: the copy reuses the state's storage
+  state_.model = model_;
 }
 
 std::span<const NodeContact> Simulator::contacts(int i) const {
