@@ -267,6 +267,9 @@ struct FrameSnapshot {
   double time = 0.0;                     // s (the lumen is moved to it)
   std::vector<std::vector<Vec3>> nodes;  // (instrument) inserted centreline, empty if outside
   std::vector<float> contrast;           // (segment)
+  // The model whose instruments `nodes` follows (the state's): after an exchange of instruments
+  // the renderer draws each by its own catalogue entry. Null: the renderer's model.
+  std::shared_ptr<const SimModel> model;
 };
 FrameSnapshot snapshot(const SimModel& model, const SimState& state);
 FrameSnapshot snapshot(const Simulator& sim);
@@ -287,14 +290,22 @@ class SimFluoroscopy {
  private:
   struct Slots {
     InstrumentVisual visual;
+    std::string catalogue;
     int shaft = -1, radiopaque = -1;
     std::vector<int> markers;
   };
+  Slots make_slots(const InstrumentSpec& spec, const std::string& name);
+  // The instruments of `model` (an exchange changed them): each drawn by its slots, those of an
+  // instrument of the same name and catalogue entry kept, others added; slots no longer used
+  // hidden and kept for later.
+  void reslot(const SimModel& model);
   FluoroRenderer renderer_;
   const CardiacMotion* motion_ = nullptr;
   int lumen_ = -1;
   std::vector<Vec3> lumen_rest_, lumen_now_;
   std::vector<Slots> instruments_;
+  std::vector<Slots> spare_;                 // slots of instruments removed (hidden)
+  std::shared_ptr<const SimModel> slotted_;  // the model instruments_ follows (null: the first)
   std::vector<float> line_integral_;
 };
 

@@ -47,19 +47,51 @@ SimFluoroscopy::SimFluoroscopy(const SimModel& md, int size, BeamEnergy energy)
   lumen_ = renderer_.add_mesh(lumen);
   for (const XrayMesh& m : body_xray_meshes(build_body_context(md.tree)))
     renderer_.set_static(renderer_.add_mesh(m), true);
+  for (int i = 0; i < md.num_instruments(); ++i)
+    instruments_.push_back(make_slots(md.specs[i], md.instrument_name(i)));
+}
+
+SimFluoroscopy::Slots SimFluoroscopy::make_slots(const InstrumentSpec& spec,
+                                                 const std::string& name) {
   const TriangleMesh ph = placeholder_tube();
+  Slots s;
+  s.visual = instrument_visual(spec, name);
+  s.catalogue = spec.name;
+  s.shaft =
+      renderer_.add_mesh({s.visual.name + "_shaft", ph, s.visual.shaft, s.visual.shaft_fill, {}});
+  if (s.visual.radiopaque_length > 0.0)
+    s.radiopaque = renderer_.add_mesh(
+        {s.visual.name + "_radiopaque", ph, s.visual.radiopaque, s.visual.radiopaque_fill, {}});
+  for (std::size_t k = 0; k < s.visual.marker_from_tip.size(); ++k)
+    s.markers.push_back(
+        renderer_.add_mesh({s.visual.name + "_marker", ph, XrayMaterial::kPtIr, 1.0f, {}}));
+  return s;
+}
+
+void SimFluoroscopy::reslot(const SimModel& md) {
+  std::vector<Slots> all = std::move(instruments_);
+  for (Slots& s : spare_) all.push_back(std::move(s));
+  spare_.clear();
+  instruments_.clear();
+  std::vector<unsigned char> used(all.size(), 0);
   for (int i = 0; i < md.num_instruments(); ++i) {
-    Slots s;
-    s.visual = instrument_visual(md.specs[i], md.instrument_name(i));
-    s.shaft =
-        renderer_.add_mesh({s.visual.name + "_shaft", ph, s.visual.shaft, s.visual.shaft_fill, {}});
-    if (s.visual.radiopaque_length > 0.0)
-      s.radiopaque = renderer_.add_mesh(
-          {s.visual.name + "_radiopaque", ph, s.visual.radiopaque, s.visual.radiopaque_fill, {}});
-    for (std::size_t k = 0; k < s.visual.marker_from_tip.size(); ++k)
-      s.markers.push_back(
-          renderer_.add_mesh({s.visual.name + "_marker", ph, XrayMaterial::kPtIr, 1.0f, {}}));
-    instruments_.push_back(std::move(s));
+    std::size_t k = 0;
+    while (k < all.size() && (used[k] || all[k].visual.name != md.instrument_name(i) ||
+                              all[k].catalogue != md.specs[i].name))
+      ++k;
+    if (k < all.size()) {
+      used[k] = 1;
+      instruments_.push_back(std::move(all[k]));
+    } else {
+      instruments_.push_back(make_slots(md.specs[i], md.instrument_name(i)));
+    }
+  }
+  for (std::size_t k = 0; k < all.size(); ++k) {
+    if (used[k]) continue;
+    for (int id : {all[k].shaft, all[k].radiopaque})
+      if (id >= 0) renderer_.set_visible(id, false);
+    for (int id : all[k].markers) renderer_.set_visible(id, false);
+    spare_.push_back(std::move(all[k]));
   }
 }
 
@@ -67,6 +99,7 @@ FrameSnapshot snapshot(const SimModel& md, const SimState& st) {
   FrameSnapshot f;
   f.time = st.time();
   f.contrast = st.contrast.concentration;
+  f.model = st.model;
   f.nodes.resize(md.num_instruments());
   for (int i = 0; i < md.num_instruments(); ++i) {
     const InstrumentState& in = st.solver.instruments[i];
@@ -96,6 +129,10 @@ void SimFluoroscopy::frame(const FrameSnapshot& snap, const CArmPose& pose,
     renderer_.update_vertices(lumen_, lumen_now_);
   }
   renderer_.set_group_concentration(snap.contrast);
+  if (snap.model && snap.model != slotted_) {
+    reslot(*snap.model);
+    slotted_ = snap.model;
+  }
   for (std::size_t i = 0; i < instruments_.size(); ++i) {
     Slots& s = instruments_[i];
     s.visual.nodes = i < snap.nodes.size() ? snap.nodes[i] : std::vector<Vec3>{};
