@@ -208,6 +208,9 @@ void walk_plan(
     if (ph.kind == AutopilotPhase::Kind::kRemove) {
       const int r = find_instrument_in(scene, ph.instrument);
       scene.erase(scene.begin() + r);
+      if (scene.empty())
+        throw InputError(sc.source, path + ".instrument",
+                         "expected an instrument left in the scene (add another first)");
       for (const ScenarioInstrument& si : scene)
         if (si.inside == ph.instrument || si.over == ph.instrument)
           throw InputError(

@@ -5,6 +5,7 @@
 #include <igtlClientSocket.h>
 #include <igtlMessageHeader.h>
 #include <igtlSensorMessage.h>
+#include <igtlStringMessage.h>
 #include <igtlTransformMessage.h>
 
 #include <chrono>
@@ -48,6 +49,43 @@ class IgtlClient {
   bool send_sensor(const char* name, const std::vector<double>& values) {
     auto msg = sensor(name, values);
     return send_raw(msg->GetPackPointer(), msg->GetPackSize());
+  }
+
+  // A STRING message, e.g. an exchange request on device "exchange" (docs/devices.md).
+  bool send_string(const char* name, const std::string& text) {
+    auto msg = igtl::StringMessage::New();
+    msg->SetDeviceName(name);
+    msg->SetString(text.c_str());
+    msg->Pack();
+    return send_raw(msg->GetPackPointer(), msg->GetPackSize());
+  }
+
+  // Reads messages until a STRING named `name` arrives; false on timeout or a closed socket.
+  bool read_string(const std::string& name, std::string& text,
+                   std::chrono::milliseconds limit = std::chrono::milliseconds(2000)) {
+    const auto end = Clock::now() + limit;
+    while (Clock::now() < end) {
+      auto head = igtl::MessageHeader::New();
+      head->InitPack();
+      const int r = sock_->Receive(head->GetPackPointer(), head->GetPackSize());
+      if (r < 0) continue;  // timeout, try again until the limit
+      if (r != head->GetPackSize()) return false;
+      head->Unpack();
+      if (std::strcmp(head->GetDeviceType(), "STRING") != 0 || name != head->GetDeviceName()) {
+        sock_->Skip(head->GetBodySizeToRead(), 1);
+        continue;
+      }
+      auto msg = igtl::StringMessage::New();
+      msg->SetMessageHeader(head);
+      msg->AllocatePack();
+      if (sock_->Receive(msg->GetPackBodyPointer(), msg->GetPackBodySize()) !=
+          msg->GetPackBodySize())
+        return false;
+      if (!(msg->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) return false;  // CRC checked
+      text = msg->GetString();
+      return true;
+    }
+    return false;
   }
 
   // Insertion depth along z and a rotation about z, as docs/devices.md describes.

@@ -195,6 +195,21 @@ TEST(Timeline, BadFilesNameFileAndField) {
        "keyframes[0].syringe_flow_ml_s", "expected a number"},
       {R"({"keyframes": [{"t_s": 0, "buttons": 2.5}]})", "keyframes[0].buttons", "integer"},
       {R"({"keyframes": [{"t_s": 0})", "json", "valid JSON"},
+      // Instrument exchange: "add" as a scenario declares an instrument, "remove" a name.
+      {R"({"keyframes": [{"t_s": 0, "add": {"name": "b"}}]})", "keyframes[0].add.catalogue",
+       "required"},
+      {R"({"keyframes": [{"t_s": 0, "add": {"name": "b", "catalogue": "x", "colour": 1}}]})",
+       "keyframes[0].add.colour", "unknown key"},
+      {R"({"keyframes": [{"t_s": 0, "add": {"name": "b", "catalogue": "x", "rim": false}}]})",
+       "keyframes[0].add.rim", "only with"},
+      {R"({"keyframes": [{"t_s": 0, "add": {"name": "b", "catalogue": "x", "max_nodes": 9}}]})",
+       "keyframes[0].add.max_nodes", ""},
+      {R"({"keyframes": [{"t_s": 0, "add": {"name": "a-name-of-twenty-ch", "catalogue": "x"}}]})",
+       "keyframes[0].add.name", "1-14"},
+      {R"({"keyframes": [{"t_s": 0, "add": "balloon"}]})", "keyframes[0].add",
+       "expected an object"},
+      {R"({"keyframes": [{"t_s": 0, "remove": 3}]})", "keyframes[0].remove", "string"},
+      {R"({"keyframes": [{"t_s": 0, "remove": ""}]})", "keyframes[0].remove", ""},
   };
   for (const auto& c : cases) {
     const std::string err = error_of(c.text);
@@ -203,6 +218,42 @@ TEST(Timeline, BadFilesNameFileAndField) {
     EXPECT_NE(err.find(c.expected), std::string::npos) << c.text << "\n -> " << err;
   }
   EXPECT_THROW(ScriptedTimeline::load("/nonexistent/timeline.json"), vcsim::InputError);
+}
+
+// Exchanges are asked for once each, in order, at the first poll at or after their keyframe's time
+// (a removal before an addition in one keyframe); names the timeline adds or removes itself bind
+// before they are in the scene, and after the exchange the commands follow the new order.
+TEST(Timeline, ExchangesAreAskedForOnceInOrderAndRebound) {
+  ScriptedTimeline tl = ScriptedTimeline::parse(R"({"keyframes": [
+    {"t_s": 0, "instruments": {"wire": {"translation_mm": 10, "rotation_deg": 0}}},
+    {"t_s": 1, "remove": "old", "add": {"name": "balloon", "catalogue": "balloon-sc-3.0x15",
+                                        "over": "wire", "tip_segment_mm": 1.5}},
+    {"t_s": 2, "instruments": {"balloon": {"translation_mm": 40, "rotation_deg": 0}}}]})",
+                                                "ex.json");
+  tl.bind(std::vector<std::string>{"wire", "old"});  // "balloon" comes later: accepted
+  ASSERT_EQ(tl.exchanges().size(), 2u);
+  vcsim::InstrumentChange c;
+  EXPECT_FALSE(tl.poll_exchange(0.5, c));
+  ASSERT_TRUE(tl.poll_exchange(1.0 - 1e-12, c)) << "a time summed step by step, a rounding short";
+  EXPECT_EQ(c.kind, vcsim::InstrumentChange::Kind::kRemove);
+  EXPECT_EQ(c.name, "old");
+  EXPECT_EQ(c.field, "keyframes[1].remove");
+  ASSERT_TRUE(tl.poll_exchange(1.0, c));
+  EXPECT_EQ(c.kind, vcsim::InstrumentChange::Kind::kAdd);
+  EXPECT_EQ(c.name, "balloon");
+  EXPECT_EQ(c.over, "wire");
+  EXPECT_DOUBLE_EQ(c.tip_segment, 1.5 * kMm);
+  EXPECT_EQ(c.source, "ex.json");
+  EXPECT_EQ(c.field, "keyframes[1].add");
+  EXPECT_EQ(vcsim::describe(c), "add balloon balloon-sc-3.0x15 over=wire");
+  EXPECT_FALSE(tl.poll_exchange(5.0, c)) << "each once";
+  tl.exchanged(c, std::vector<std::string>{"wire", "balloon"});
+  const StepCommands s = at(tl, 2.0);
+  ASSERT_EQ(s.drive.size(), 2u);
+  EXPECT_DOUBLE_EQ(s.drive[0].translation, 10 * kMm);
+  EXPECT_DOUBLE_EQ(s.drive[1].translation, 40 * kMm);
+  // A name neither in the scene nor exchanged by the timeline is still refused.
+  EXPECT_THROW(tl.bind(std::vector<std::string>{"old"}), vcsim::InputError);
 }
 
 // Nesting 100,000 deep (which overflowed the stack), a number beyond a double and a repeated key

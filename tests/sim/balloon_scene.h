@@ -24,8 +24,10 @@ inline constexpr double kAccessS = 0.190;   // m along the tube
 inline constexpr double kLesionS0 = 0.060;  // m
 inline constexpr double kLesionS1 = 0.072;  // m
 
-// Writes the tube's anatomy into `dir` and returns the scenario (wire [0], balloon [1]).
-inline Scenario balloon_in_tube(const std::filesystem::path& dir, const TubeSpecs& t) {
+// Writes the tube's anatomy into `dir` and returns a scenario of it with `instruments_json` (the
+// scenario's instruments[] array).
+inline Scenario tube_scenario(const std::filesystem::path& dir, const TubeSpecs& t,
+                              const std::string& instruments_json) {
   std::filesystem::create_directories(dir);
   std::string lesion;
   if (t.lesion_percent > 0.0)
@@ -44,14 +46,22 @@ inline Scenario balloon_in_tube(const std::filesystem::path& dir, const TubeSpec
   return parse_scenario(R"({"format": "vcsim-scenario", "version": 1, "name": "balloon-tube",
     "anatomy": "tube.json", "motion": {"beating": false}, "dt_ms": 0.5,
     "sheath_length_mm": 10,
-    "instruments": [
-      {"name": "wire", "catalogue": "wire-014-floppy", "max_nodes": 160, "tip_segment_mm": 1},
-      {"name": "balloon", "catalogue": ")" +
-                            t.catalogue + R"(", "over": "wire", "max_nodes": 200,
-       "tip_segment_mm": 1}],
+    "instruments": )" + instruments_json +
+                            R"(,
     "input": {"type": "timeline", "file": "unused.json"})" +
                             lesions + "}",
                         (dir / "tube-scenario.json").string(), dir);
+}
+
+// The tube with a wire [0] and a balloon or stent catheter [1] riding on it.
+inline Scenario balloon_in_tube(const std::filesystem::path& dir, const TubeSpecs& t) {
+  return tube_scenario(dir, t,
+                       R"([
+      {"name": "wire", "catalogue": "wire-014-floppy", "max_nodes": 160, "tip_segment_mm": 1},
+      {"name": "balloon", "catalogue": ")" +
+                           t.catalogue +
+                           R"(", "over": "wire", "max_nodes": 200,
+       "tip_segment_mm": 1}])");
 }
 
 // The inserted depth (m) that puts the middle of a balloon catheter's balloon at arc length s of

@@ -165,5 +165,71 @@ TEST(SimulatorRunLoop, IgtlClientDrivesTheWire) {
   EXPECT_GT(sim.metrics().tip_path[0], 0.015);
 }
 
+// An OpenIGTLink client changes the scene on the "exchange" device (docs/devices.md): a catheter
+// added over the wire is answered "done", then driven by its name and felt (force_cath); removing
+// the wire while it is in the patient is refused and answered, as is a request that does not
+// parse; the run goes on. The loop runs without pacing, step by step between the client's moves.
+TEST(SimulatorRunLoop, IgtlClientExchangesInstruments) {
+  Simulator sim(wire_scenario());
+  IgtlServerOptions o;
+  o.port = 0;
+  o.instruments = {"wire"};
+  o.log = [](const std::string&) {};
+  IgtlServer server(o);
+  test::IgtlClient c;
+  ASSERT_TRUE(c.connect(server.port()));
+  auto accepted = [&](std::uint64_t n) {
+    for (int i = 0; i < 1000 && server.stats().messages_accepted < n; ++i)
+      std::this_thread::sleep_for(10ms);
+    return server.stats().messages_accepted >= n;
+  };
+  RunLoopSettings s;
+  auto run_to = [&](double t) {
+    s.end_time = t;
+    run_loop(sim, server, s);
+  };
+  const double dt = sim.dt();
+  ASSERT_TRUE(c.send_sensor("wire", {30.0, 0.0}));
+  ASSERT_TRUE(accepted(1));
+  run_to(0.1);  // 30 mm at the drive's 0.5 m/s
+  EXPECT_NEAR(sim.depth(0), 0.030, 1e-9);
+
+  ASSERT_TRUE(c.send_string("exchange", "add cath catheter-jr4-6f over=wire"));
+  ASSERT_TRUE(accepted(2));
+  run_to(0.1 + dt);  // applied before the step
+  ASSERT_EQ(sim.num_instruments(), 2);
+  EXPECT_EQ(sim.model().instrument_name(1), "cath");
+  std::string reply;
+  ASSERT_TRUE(c.read_string("exchange", reply));
+  EXPECT_EQ(reply, "done: add cath catheter-jr4-6f over=wire");
+  ASSERT_TRUE(c.send_sensor("cath", {20.0, 0.0}));
+  ASSERT_TRUE(accepted(3));
+  run_to(0.2);
+  EXPECT_NEAR(sim.depth(1), 0.020, 1e-9);
+  EXPECT_NEAR(sim.depth(0), 0.030, 1e-9);
+  std::vector<double> force;
+  EXPECT_TRUE(c.read_sensor("force_cath", force));
+  EXPECT_EQ(force.size(), 2u);
+
+  ASSERT_TRUE(c.send_string("exchange", "remove wire"));
+  ASSERT_TRUE(accepted(4));
+  run_to(0.2 + dt);
+  ASSERT_TRUE(c.read_string("exchange", reply));
+  EXPECT_EQ(reply.rfind("refused: remove wire: ", 0), 0u) << reply;
+  EXPECT_NE(reply.find("withdraw it first"), std::string::npos) << reply;
+  EXPECT_EQ(sim.num_instruments(), 2);
+
+  ASSERT_TRUE(c.send_string("exchange", "swap wire cath"));
+  ASSERT_TRUE(c.read_string("exchange", reply));
+  EXPECT_EQ(reply.rfind("refused: swap wire cath: expected \"add NAME", 0), 0u) << reply;
+  run_to(0.3);
+  const IgtlStats st = server.stats();
+  EXPECT_EQ(st.exchanges, 1u);
+  EXPECT_EQ(st.exchanges_refused, 1u);
+  EXPECT_EQ(st.messages_dropped, 1u);
+  EXPECT_EQ(sim.num_instruments(), 2);
+  c.close();
+}
+
 }  // namespace
 }  // namespace vcsim

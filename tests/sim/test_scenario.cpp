@@ -146,6 +146,51 @@ TEST(Scenario, BadInputNamesTheField) {
                "fine_step_jump_n");
   expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"fine_step_hold_ms\": 2000"),
                "fine_step_hold_ms");
+  // Instrument exchange in the plan: an add declares an instrument as instruments[] does; phases
+  // name instruments in the scene when they start; a removal leaves nothing inside or over it.
+  const std::string add_b =
+      "{\"action\": \"add\", \"instrument\": {\"name\": \"b\", "
+      "\"catalogue\": \"balloon-sc-3.0x15\", \"over\": \"wire\"}}, ";
+  const std::string nav = "{\"action\": \"navigate\"";
+  expect_error(edit(nav, "{\"action\": \"add\", \"instrument\": \"b\"}, " + nav),
+               "autopilot[0].instrument");
+  expect_error(edit(nav, "{\"action\": \"add\", \"instrument\": {\"name\": \"b\"}}, " + nav),
+               "autopilot[0].instrument.catalogue");
+  expect_error(edit(nav,
+                    "{\"action\": \"add\", \"instrument\": {\"name\": \"wire\", "
+                    "\"catalogue\": \"wire-014-floppy\"}}, " +
+                        nav),
+               "autopilot[0].instrument.name");
+  expect_error(edit(nav,
+                    "{\"action\": \"add\", \"instrument\": {\"name\": \"b\", "
+                    "\"catalogue\": \"x\", \"over\": \"nothing\"}}, " +
+                        nav),
+               "autopilot[0].instrument.over");
+  expect_error(edit(nav, "{\"action\": \"remove\", \"instrument\": \"b\"}, " + nav),
+               "autopilot[0]");
+  expect_error(edit(nav, "{\"action\": \"remove\", \"instrument\": \"wire\"}, " + nav),
+               "autopilot[0].instrument");  // none left
+  const std::string add_w =
+      "{\"action\": \"add\", \"instrument\": {\"name\": \"w2\", "
+      "\"catalogue\": \"wire-014-floppy\"}}, ";
+  expect_error(edit(nav, add_w + "{\"action\": \"remove\", \"instrument\": \"wire\"}, " + nav),
+               "autopilot[2]");  // the navigate names a wire no longer there
+  expect_error(edit(nav, add_b + "{\"action\": \"remove\", \"instrument\": \"wire\"}, " + nav),
+               "autopilot[1].instrument");  // the balloon rides on it
+  expect_error(
+      edit(nav, "{\"action\": \"remove\", \"instrument\": \"wire\", \"depth_mm\": 0}, " + nav),
+      "autopilot[0].depth_mm");
+  // A landmark may name an instrument the plan adds; the add is in the plan.
+  std::string text = edit(nav, add_b + nav);
+  text.replace(text.find("\"name\": \"t\""), 11,
+               "\"name\": \"t\", \"landmarks\": [{\"name\": \"x\", \"instrument\": \"b\", "
+               "\"segment\": \"lad\"}]");
+  const Scenario sc = parse_scenario(text, "ok.json");
+  ASSERT_EQ(sc.autopilot.size(), 2u);
+  EXPECT_EQ(sc.autopilot[0].kind, AutopilotPhase::Kind::kAdd);
+  EXPECT_EQ(sc.autopilot[0].instrument, "b");
+  EXPECT_EQ(sc.autopilot[0].added.catalogue, "balloon-sc-3.0x15");
+  EXPECT_EQ(sc.landmarks[0].instrument, "b");
   // Duplicated names would make commands ambiguous.
   expect_error(edit("\"catalogue\": \"wire-035-j3-hydrophilic\"}",
                     "\"catalogue\": \"wire-035-j3-hydrophilic\"}, {\"name\": \"wire\", "
