@@ -10,6 +10,11 @@
 // in the wall and its balloon deflated inside it). Counters: procedure_us, the procedure stage
 // (pressures, fit, holds, the wall brought to the lesions, after-step) per step; step_us, the
 // whole step.
+//
+// An instrument exchange in the default scene (3 s in, the same scene): BM_Exchange adds a 0.014"
+// wire in the guide and removes it again, two exchanges per iteration (each a model rebuild of
+// the instruments around the shared anatomy, the state carried over, the wall taken over);
+// BM_RebuildModel times the model rebuild alone.
 #include <benchmark/benchmark.h>
 
 #include <filesystem>
@@ -79,6 +84,43 @@ void BM_StateHash(benchmark::State& state) {
   for (auto _ : state) benchmark::DoNotOptimize(sim.state().hash());
 }
 BENCHMARK(BM_StateHash)->Unit(benchmark::kMicrosecond);
+
+InstrumentChange wire_change(InstrumentChange::Kind kind) {
+  InstrumentChange c;
+  c.kind = kind;
+  c.name = "wire2";
+  c.catalogue = "wire-014-floppy";
+  c.inside = "catheter";
+  c.rim = false;
+  c.tip_segment = 2e-3;
+  return c;
+}
+
+void BM_Exchange(benchmark::State& state) {
+  static Scene s(3.0);
+  Simulator& sim = *s.sim;
+  const InstrumentChange add = wire_change(InstrumentChange::Kind::kAdd);
+  const InstrumentChange remove = wire_change(InstrumentChange::Kind::kRemove);
+  for (auto _ : state) {
+    sim.exchange(add);
+    sim.exchange(remove);
+  }
+  state.SetItemsProcessed(2 * state.iterations());  // exchanges
+  state.counters["instruments"] = sim.num_instruments() + 1;
+}
+BENCHMARK(BM_Exchange)->Unit(benchmark::kMillisecond);
+
+void BM_RebuildModel(benchmark::State& state) {
+  static Scene s(3.0);
+  const SimModel& md = s.sim->model();
+  std::vector<ScenarioInstrument> list = md.scenario.instruments;
+  list.push_back(to_scenario_instrument(wire_change(InstrumentChange::Kind::kAdd)));
+  for (auto _ : state) {
+    auto m = rebuild_sim_model(md, list, "bench", [](int) { return std::string("instruments"); });
+    benchmark::DoNotOptimize(m.get());
+  }
+}
+BENCHMARK(BM_RebuildModel)->Unit(benchmark::kMillisecond);
 
 // The tube scene of mode 0 (balloon deflated), 1 (inflated), 2 (stent deployed), brought to its
 // steady state once per program.
