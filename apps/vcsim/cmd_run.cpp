@@ -43,34 +43,37 @@ struct RunOptions {
   bool realtime = false;
   std::string force_log;  // CSV of the hand forces, every step ("" = none)
   std::string replay;     // a command recording to replay (a trainer session), "" = none
+  std::string record;     // where to write the run's command recording, "" = none
 };
 
-// What the command line does around each step: the autopilot's log, the force log, the film and
-// the progress bar (on a terminal).
+// What the command line does around each step: the autopilot's log, the force log, the command
+// recording, the film and the progress bar (on a terminal).
 class RunDisplay : public RunObserver {
  public:
   RunDisplay(const RunOptions& o, Autopilot* pilot, RunObserver* film, RunObserver* force_log,
-             double end_time, std::string label)
+             RunObserver* recorder, double end_time, std::string label)
       : o_(o),
         pilot_(pilot),
         film_(film),
         force_log_(force_log),
+        recorder_(recorder),
         end_time_(end_time),
         label_(std::move(label)),
         bar_(!o.quiet && isatty(STDERR_FILENO)),
         loop0_(now_us()) {}
-  bool before_step(const Simulator& sim, const StepCommands&) override {
-    if (!pilot_) return true;
-    if (pilot_->finished()) return false;
-    if (pilot_->status() != last_status_) {
+  bool before_step(const Simulator& sim, const StepCommands& cmds) override {
+    if (pilot_ && pilot_->finished()) return false;
+    if (pilot_ && pilot_->status() != last_status_) {
       last_status_ = pilot_->status();
       if (!isatty(STDERR_FILENO) && !o_.quiet)
         std::cerr << "run: t = " << sim.time() << " s: " << last_status_ << "\n";
     }
+    if (recorder_) recorder_->before_step(sim, cmds);  // the step is taken
     return true;
   }
   void exchanged(const Simulator& sim, const InstrumentChange& change) override {
     if (force_log_) force_log_->exchanged(sim, change);
+    if (recorder_) recorder_->exchanged(sim, change);
     if (!o_.quiet && !bar_)
       std::cerr << "run: t = " << sim.time() << " s: exchange: " << describe(change) << "\n";
   }
@@ -94,7 +97,7 @@ class RunDisplay : public RunObserver {
  private:
   const RunOptions& o_;
   Autopilot* pilot_;
-  RunObserver *film_, *force_log_;
+  RunObserver *film_, *force_log_, *recorder_;
   double end_time_;
   std::string label_;
   bool bar_;
@@ -193,13 +196,15 @@ int cmd_run(const RunOptions& o) {
   }
   std::unique_ptr<ForceLog> force_log;
   if (!o.force_log.empty()) force_log = std::make_unique<ForceLog>(o.force_log, sim.model());
+  std::unique_ptr<CommandRecorder> commands;
+  if (!o.record.empty()) commands = std::make_unique<CommandRecorder>(sim, "vcsim run");
   if (device) {
     std::string list;
     for (const std::string& n : names) list += (list.empty() ? "" : ", ") + n;
     std::cerr << "run: OpenIGTLink server listening on " << o.address << ":" << device->port()
               << " (instruments: " << list << ")" << std::endl;  // flushed: a client waits on it
   }
-  RunDisplay display(o, pilot.get(), film.get(), force_log.get(), report.end_time,
+  RunDisplay display(o, pilot.get(), film.get(), force_log.get(), commands.get(), report.end_time,
                      report.input_type);
   RunLoopSettings loop_settings;
   loop_settings.end_time = report.end_time;
@@ -231,6 +236,7 @@ int cmd_run(const RunOptions& o) {
   }
   const fs::path metrics = out / "metrics.json";
   write_run_metrics(metrics, sim, report);
+  if (commands) commands->finish(sim).save(o.record);
   print_run_summary(std::cout, sim, report, frames_dir, metrics);
   if (replay && replay->recording().state_hash != 0) {
     const bool same = replay->recording().state_hash == sim.state().hash();
@@ -261,6 +267,9 @@ void install(CLI::App& app, int& status) {
   cmd->add_option("--replay", o->replay,
                   "Replay a command recording (a trainer session's recording.json) instead of "
                   "the scenario's input, to the same final state");
+  cmd->add_option("--record", o->record,
+                  "Write the run's commands and instrument exchanges to this command recording "
+                  "(replayed by --replay to the same final state)");
   cmd->callback([o, &status, cmd] {
     o->port_given = cmd->count("--port") > 0;
     o->address_given = cmd->count("--address") > 0;

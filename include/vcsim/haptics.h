@@ -86,8 +86,12 @@ struct InstrumentChange {
   std::string field = "instruments";
 };
 const char* to_string(InstrumentChange::Kind k);
-// "add stent stent-cocr-3.0x18 inside=guide over=wire", "remove wire" (the IGTL grammar).
+// "add stent stent-cocr-3.0x18 inside=guide over=wire", "remove wire": the grammar of the
+// OpenIGTLink exchange device and of recordings (rim, max_nodes and tip_segment left out).
 std::string describe(const InstrumentChange& c);
+// Reads that grammar ("add NAME CATALOGUE [inside=X] [over=Y]" or "remove NAME") into `out`
+// (the other fields at their defaults): "" when it parses, else what was expected.
+std::string parse_exchange_request(std::string_view text, InstrumentChange& out);
 
 // A source of commands, polled by the physics thread once per step.
 class InputSource {
@@ -221,16 +225,29 @@ class CommandRecording {
   std::uint64_t state_hash = 0;          // SimState::hash after the last step (0: not given)
   std::string made_by = "trainer";       // what recorded it
 
-  // Appends one step's commands (one drive per instrument, asserted). Allocates only when a new
-  // run starts and the storage is full.
+  // An instrument exchange made before step `step` (0-based): the scene's instruments change
+  // there, and the steps from it on have one drive command per instrument of the scene then.
+  struct Exchange {
+    std::int64_t step = 0;
+    InstrumentChange change;
+  };
+
+  // Appends one step's commands (one drive per instrument of the scene, asserted). Allocates
+  // only when a new run starts and the storage is full.
   void append(const StepCommands& c);
-  // Keeps the first `steps` steps (a rewind to a snapshot taken after that many steps).
+  // Records an exchange made before the next step appended (a run never spans one).
+  void append_exchange(const InstrumentChange& c);
+  // Keeps the first `steps` steps and the exchanges before them (a rewind to a snapshot taken
+  // after that many steps).
   void truncate(std::int64_t steps);
   void clear() { truncate(0); }
   std::int64_t steps() const { return total_; }
   std::size_t num_runs() const { return runs_.size(); }
   const Run& run(std::size_t r) const { return runs_[r]; }
   std::span<const DriveCommand> run_drive(std::size_t r) const;
+  const std::vector<Exchange>& exchanges() const { return exchanges_; }
+  // Instruments in the scene after the exchanges recorded so far.
+  std::size_t scene_size() const;
   // The commands of step `step` (0-based, < steps()), into `out` (no allocation once sized).
   void at(std::int64_t step, StepCommands& out) const;
 
@@ -242,13 +259,17 @@ class CommandRecording {
 
  private:
   std::vector<Run> runs_;
-  std::vector<DriveCommand> drive_;  // (run x instrument)
+  std::vector<DriveCommand> drive_;  // (run x its instruments)
+  std::vector<std::size_t> start_;   // (run) its first drive command in drive_
+  std::vector<std::size_t> width_;   // (run) instruments in the scene during it
   std::vector<std::int64_t> end_;    // (run) steps up to and including the run
+  std::vector<Exchange> exchanges_;  // by step
   std::int64_t total_ = 0;
 };
 
 // A recording replayed as an input source: the commands of the step at sim_time (its index is
-// round(sim_time / dt)), bit for bit as recorded; after the last step every hand holds still.
+// round(sim_time / dt)), bit for bit as recorded, and its exchanges before the steps they were
+// made before; after the last step every hand holds still.
 class RecordingReplay : public InputSource {
  public:
   // Checks the recording against the scene (its instrument names in order, `dt`, and, when both
@@ -256,11 +277,15 @@ class RecordingReplay : public InputSource {
   RecordingReplay(CommandRecording recording, std::span<const std::string> instruments, double dt,
                   std::uint64_t model_hash, const std::string& source);
   void poll(double sim_time, StepCommands& out) override;
+  bool poll_exchange(double sim_time, InstrumentChange& out) override;
+  void exchanged(const InstrumentChange& change, std::span<const std::string> instruments) override;
   const CommandRecording& recording() const { return rec_; }
   double duration() const { return static_cast<double>(rec_.steps()) * rec_.dt; }  // s
 
  private:
   CommandRecording rec_;
+  std::size_t next_exchange_ = 0;
+  std::size_t scene_size_ = 0;  // instruments in the scene now
 };
 
 struct IgtlServerOptions {

@@ -619,6 +619,21 @@ class ForceLog : public RunObserver {
   std::unique_ptr<File> f_;
 };
 
+// A run's commands and instrument exchanges as a CommandRecording (`vcsim run --record`), which
+// `vcsim run --replay` steps to the same state: each step's commands as the step takes them,
+// each exchange as it is made.
+class CommandRecorder : public RunObserver {
+ public:
+  CommandRecorder(const Simulator& sim, std::string made_by);
+  bool before_step(const Simulator& sim, const StepCommands& commands) override;
+  void exchanged(const Simulator& sim, const InstrumentChange& change) override;
+  // The recording, with the hash of the state after its last step.
+  const CommandRecording& finish(const Simulator& sim);
+
+ private:
+  CommandRecording rec_;
+};
+
 // ---------------------------------------------------------------------------------------------
 // Autopilot
 

@@ -41,6 +41,34 @@ std::string describe(const InstrumentChange& c) {
   return s;
 }
 
+std::string parse_exchange_request(std::string_view text, InstrumentChange& out) {
+  std::istringstream in{std::string(text)};
+  std::vector<std::string> w;
+  for (std::string word; in >> word;) w.push_back(word);
+  const std::string grammar =
+      "expected \"add NAME CATALOGUE [inside=X] [over=Y]\" or \"remove NAME\"";
+  out = InstrumentChange{};
+  if (w.size() == 2 && w[0] == "remove") {
+    out.kind = InstrumentChange::Kind::kRemove;
+    out.name = w[1];
+    return {};
+  }
+  if (w.size() < 3 || w.size() > 5 || w[0] != "add") return grammar;
+  out.kind = InstrumentChange::Kind::kAdd;
+  out.name = w[1];
+  out.catalogue = w[2];
+  for (std::size_t k = 3; k < w.size(); ++k) {
+    const std::string& o = w[k];
+    std::string* to = o.rfind("inside=", 0) == 0 ? &out.inside
+                      : o.rfind("over=", 0) == 0 ? &out.over
+                                                 : nullptr;
+    if (!to || !to->empty()) return cat(grammar, ", got \"", o, "\"");
+    *to = o.substr(o.find('=') + 1);
+    if (to->empty()) return cat("expected a name after \"", o, "\"");
+  }
+  return {};
+}
+
 DriveCommand to_drive_command(const InstrumentCommand& c) {
   DriveCommand d;
   d.mode = c.mode == InstrumentCommand::Mode::kPosition ? DriveCommand::Mode::kPosition

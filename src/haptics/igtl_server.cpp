@@ -98,44 +98,6 @@ bool valid_instrument_name(const std::string& s) {
          s.rfind("vel_", 0) != 0 && s.rfind("force_", 0) != 0;
 }
 
-// The "exchange" device's grammar (docs/devices.md): "add NAME CATALOGUE [inside=X] [over=Y]" or
-// "remove NAME", words separated by spaces. Returns "" with `out` filled, else what is wrong.
-std::string parse_exchange(const std::string& text, InstrumentChange& out) {
-  std::istringstream in(text);
-  std::vector<std::string> w;
-  for (std::string word; in >> word;) w.push_back(word);
-  const std::string grammar =
-      "expected \"add NAME CATALOGUE [inside=X] [over=Y]\" or \"remove NAME\"";
-  if (w.empty()) return grammar;
-  out = InstrumentChange{};
-  out.source = "igtl";
-  out.field = "exchange";
-  if (w[0] == "remove" && w.size() == 2) {
-    out.kind = InstrumentChange::Kind::kRemove;
-    out.name = w[1];
-    return {};
-  }
-  if (w[0] != "add" || w.size() < 3 || w.size() > 5) return grammar;
-  out.kind = InstrumentChange::Kind::kAdd;
-  out.name = w[1];
-  out.catalogue = w[2];
-  if (!valid_instrument_name(out.name))
-    return cat(
-        "expected a name of 1-14 characters from A-Z a-z 0-9 _ -, not balloon, syringe, "
-        "buttons, exchange or a vel_/force_ prefix; got \"",
-        out.name, "\"");
-  for (std::size_t k = 3; k < w.size(); ++k) {
-    const std::string& o = w[k];
-    std::string* to = o.rfind("inside=", 0) == 0 ? &out.inside
-                      : o.rfind("over=", 0) == 0 ? &out.over
-                                                 : nullptr;
-    if (!to || !to->empty()) return cat(grammar, ", got \"", o, "\"");
-    *to = o.substr(o.find('=') + 1);
-    if (to->empty()) return cat("expected a name after \"", o, "\"");
-  }
-  return {};
-}
-
 }  // namespace
 
 struct IgtlServer::Impl {
@@ -358,7 +320,15 @@ struct IgtlServer::Impl {
       if (static_cast<unsigned char>(c) < 0x20 || static_cast<unsigned char>(c) > 0x7e)
         return drop(device, "expected printable ASCII");
     InstrumentChange change;
-    const std::string why = parse_exchange(text, change);
+    std::string why = parse_exchange_request(text, change);
+    if (why.empty() && change.kind == InstrumentChange::Kind::kAdd &&
+        !valid_instrument_name(change.name))
+      why =
+          cat("expected a name of 1-14 characters from A-Z a-z 0-9 _ -, not balloon, syringe, "
+              "buttons, exchange or a vel_/force_ prefix; got \"",
+              change.name, "\"");
+    change.source = "igtl";
+    change.field = "exchange";
     if (!why.empty()) {
       drop(device, why);
       reply(cat("refused: ", text, ": ", why));
@@ -608,7 +578,7 @@ IgtlServer::IgtlServer(IgtlServerOptions options) : impl_(std::make_unique<Impl>
     if (!valid_instrument_name(n)) {
       throw InputError(src, field,
                        cat("expected 1-14 characters from A-Z a-z 0-9 _ -, not balloon, syringe, "
-                           "buttons or a vel_/force_ prefix; got \"",
+                           "buttons, exchange or a vel_/force_ prefix; got \"",
                            n, "\""));
     }
     for (std::size_t j = 0; j < i; ++j) {

@@ -60,12 +60,21 @@ std::uint64_t parse_hex64(const std::string& s, const std::string& source,
 
 }  // namespace
 
+std::size_t CommandRecording::scene_size() const {
+  std::size_t n = instruments.size();
+  for (const Exchange& e : exchanges_)
+    n = e.change.kind == InstrumentChange::Kind::kAdd ? n + 1 : n - 1;
+  return n;
+}
+
 void CommandRecording::append(const StepCommands& c) {
-  const std::size_t n = instruments.size();
-  assert(c.drive.size() == n);
-  if (!runs_.empty()) {
+  const std::size_t n = c.drive.size();
+  assert(n == scene_size());
+  // A run never spans an exchange: the scene's instruments differ on either side.
+  const bool exchanged = !exchanges_.empty() && exchanges_.back().step == total_;
+  if (!runs_.empty() && !exchanged) {
     Run& last = runs_.back();
-    const DriveCommand* d = drive_.data() + (runs_.size() - 1) * n;
+    const DriveCommand* d = drive_.data() + start_.back();
     bool equal = same(last.syringe_flow, c.syringe_flow) &&
                  same(last.balloon_pressure, c.balloon_pressure) && last.buttons == c.buttons;
     for (std::size_t i = 0; equal && i < n; ++i) equal = same_drive(d[i], c.drive[i]);
@@ -77,9 +86,15 @@ void CommandRecording::append(const StepCommands& c) {
     }
   }
   runs_.push_back({1, c.syringe_flow, c.balloon_pressure, c.buttons});
+  start_.push_back(drive_.size());
+  width_.push_back(n);
   drive_.insert(drive_.end(), c.drive.begin(), c.drive.begin() + static_cast<std::ptrdiff_t>(n));
   ++total_;
   end_.push_back(total_);
+}
+
+void CommandRecording::append_exchange(const InstrumentChange& c) {
+  exchanges_.push_back({total_, c});
 }
 
 void CommandRecording::truncate(std::int64_t steps) {
@@ -94,13 +109,16 @@ void CommandRecording::truncate(std::int64_t steps) {
   }
   runs_.resize(keep);
   end_.resize(keep);
-  drive_.resize(keep * instruments.size());
+  drive_.resize(keep > 0 ? start_[keep - 1] + width_[keep - 1] : 0);
+  start_.resize(keep);
+  width_.resize(keep);
+  // An exchange made before step `steps` happened after the state those steps lead to.
+  std::erase_if(exchanges_, [&](const Exchange& e) { return e.step >= steps; });
   total_ = steps;
 }
 
 std::span<const DriveCommand> CommandRecording::run_drive(std::size_t r) const {
-  const std::size_t n = instruments.size();
-  return {drive_.data() + r * n, n};
+  return {drive_.data() + start_[r], width_[r]};
 }
 
 void CommandRecording::at(std::int64_t step, StepCommands& out) const {
@@ -108,7 +126,7 @@ void CommandRecording::at(std::int64_t step, StepCommands& out) const {
   const auto it = std::upper_bound(end_.begin(), end_.end(), step);
   const std::size_t r = static_cast<std::size_t>(it - end_.begin());
   const Run& run = runs_[r];
-  out.drive.resize(instruments.size());
+  out.drive.resize(width_[r]);
   const std::span<const DriveCommand> d = run_drive(r);
   std::copy(d.begin(), d.end(), out.drive.begin());
   out.syringe_flow = run.syringe_flow;
@@ -119,7 +137,9 @@ void CommandRecording::at(std::int64_t step, StepCommands& out) const {
 std::string CommandRecording::to_json() const {
   std::string s;
   s.reserve(256 + runs_.size() * (40 + 48 * instruments.size()));
-  s += "{\"format\": \"vcsim-recording\", \"version\": 1,\n";
+  // Version 2 when the scene's instruments change during it (exchanges).
+  s += exchanges_.empty() ? "{\"format\": \"vcsim-recording\", \"version\": 1,\n"
+                          : "{\"format\": \"vcsim-recording\", \"version\": 2,\n";
   s += " \"made_by\": " + Json(made_by).dump() + ",\n";
   s += " \"scenario\": " + Json(scenario).dump() + ",\n";
   s += " \"scenario_file\": " + Json(scenario_file).dump() + ",\n";
@@ -136,6 +156,23 @@ std::string CommandRecording::to_json() const {
   s += "],\n";
   s += " \"units\": \"SI. mode p: translation m (inserted depth), rotation rad (roll); mode v: m/s "
        "and rad/s\",\n";
+  if (!exchanges_.empty()) {
+    // Made before step `step`; the runs from there on have the scene's instruments then.
+    s += " \"exchanges\": [";
+    for (std::size_t k = 0; k < exchanges_.size(); ++k) {
+      const Exchange& e = exchanges_[k];
+      s += k == 0 ? "\n  " : ",\n  ";
+      s += "{\"step\": " + std::to_string(e.step) +
+           ", \"change\": " + Json(describe(e.change)).dump();
+      if (e.change.kind == InstrumentChange::Kind::kAdd) {
+        s += std::string(", \"rim\": ") + (e.change.rim ? "true" : "false");
+        s += ", \"max_nodes\": " + std::to_string(e.change.max_nodes) + ", \"tip_segment_m\": ";
+        put_number(s, e.change.tip_segment);
+      }
+      s += "}";
+    }
+    s += "],\n";
+  }
   s += " \"runs\": [";
   for (std::size_t r = 0; r < runs_.size(); ++r) {
     const Run& run = runs_[r];
@@ -175,11 +212,11 @@ CommandRecording CommandRecording::parse(std::string_view json_text, const std::
   const Json doc = internal::parse_json_text(json_text, source);
   JsonFields root(doc, source, "");
   root.keys({"format", "version", "made_by", "scenario", "scenario_file", "dt_s", "instruments",
-             "model_hash", "state_hash", "steps", "columns", "units", "runs"});
+             "model_hash", "state_hash", "steps", "columns", "units", "exchanges", "runs"});
   if (root.string("format") != "vcsim-recording")
     root.fail("format",
               cat("expected \"vcsim-recording\", got ", internal::describe_json(doc["format"])));
-  if (root.integer_or("version", 1, 1, 1) != 1) root.fail("version", "expected 1");
+  const int version = root.integer_or("version", 1, 2, 1);
   CommandRecording rec;
   rec.made_by = root.string_or("made_by", "");
   rec.scenario = root.string_or("scenario", "");
@@ -194,15 +231,45 @@ CommandRecording CommandRecording::parse(std::string_view json_text, const std::
   const double steps = root.nonnegative("steps");
   root.get("columns");
   root.get("units");
+  if (root.has("exchanges")) {
+    if (version < 2) root.fail("exchanges", "expected only in version 2");
+    const Json& list = root.array("exchanges");
+    for (std::size_t k = 0; k < list.size(); ++k) {
+      JsonFields e(list[k], source, internal::index_path("exchanges", k));
+      Exchange x;
+      const double step = e.nonnegative("step");
+      if (step != std::floor(step) || step > 9.0e15) e.fail("step", "expected a whole number");
+      x.step = static_cast<std::int64_t>(step);
+      if (!rec.exchanges_.empty() && x.step < rec.exchanges_.back().step)
+        e.fail("step", "expected the exchanges in the order of their steps");
+      const std::string why = parse_exchange_request(e.string("change"), x.change);
+      if (!why.empty()) e.fail("change", why);
+      if (x.change.kind == InstrumentChange::Kind::kAdd) {
+        x.change.rim = e.boolean_or("rim", true);
+        x.change.max_nodes = e.integer_or("max_nodes", 16, 512, 256);
+        x.change.tip_segment = e.positive_or("tip_segment_m", 1.0e-3);
+      }
+      e.finish();
+      x.change.source = source;
+      x.change.field = e.path();
+      rec.exchanges_.push_back(std::move(x));
+      if (rec.scene_size() == 0) e.fail("change", "expected an instrument left in the scene");
+    }
+  }
   const Json& runs = root.array("runs");
   root.finish();
 
-  const std::size_t n = rec.instruments.size();
+  // Each run has one drive command per instrument in the scene then (the exchanges before it).
+  std::size_t n = rec.instruments.size();
+  std::size_t next_exchange = 0;
   StepCommands c;
-  c.reset(n);
   std::int64_t total = 0;
   for (std::size_t r = 0; r < runs.size(); ++r) {
     const std::string field = internal::index_path("runs", r);
+    for (; next_exchange < rec.exchanges_.size() && rec.exchanges_[next_exchange].step <= total;
+         ++next_exchange)
+      n = rec.exchanges_[next_exchange].change.kind == InstrumentChange::Kind::kAdd ? n + 1 : n - 1;
+    c.reset(n);
     const Json& row = runs[r];
     if (!row.is_array() || row.size() != 4 + 3 * n)
       throw InputError(source, field,
@@ -238,12 +305,21 @@ CommandRecording CommandRecording::parse(std::string_view json_text, const std::
       c.drive[i].rotation = number(k + 2);
     }
     const auto k = static_cast<std::int64_t>(count);
+    if (next_exchange < rec.exchanges_.size() && rec.exchanges_[next_exchange].step < total + k)
+      throw InputError(
+          source, field,
+          cat("expected the run to end at step ",
+              std::to_string(rec.exchanges_[next_exchange].step), ", where an exchange is made"));
     // Appended run by run, not step by step; equal neighbours are kept as written.
     rec.runs_.push_back({k, c.syringe_flow, c.balloon_pressure, c.buttons});
+    rec.start_.push_back(rec.drive_.size());
+    rec.width_.push_back(n);
     rec.drive_.insert(rec.drive_.end(), c.drive.begin(), c.drive.end());
     total += k;
     rec.end_.push_back(total);
   }
+  if (!rec.exchanges_.empty() && rec.exchanges_.back().step > total)
+    root.fail("exchanges", "expected every exchange within the recording's steps");
   rec.total_ = total;
   if (static_cast<double>(total) != steps)
     root.fail("steps", cat("expected the sum of the runs' steps, ", std::to_string(total), ", got ",
@@ -262,7 +338,7 @@ CommandRecording CommandRecording::load(const std::filesystem::path& file) {
 RecordingReplay::RecordingReplay(CommandRecording recording,
                                  std::span<const std::string> instruments, double dt,
                                  std::uint64_t model_hash, const std::string& source)
-    : rec_(std::move(recording)) {
+    : rec_(std::move(recording)), scene_size_(rec_.instruments.size()) {
   if (!std::equal(instruments.begin(), instruments.end(), rec_.instruments.begin(),
                   rec_.instruments.end())) {
     std::string want;
@@ -287,7 +363,19 @@ void RecordingReplay::poll(double sim_time, StepCommands& out) {
     rec_.at(step, out);
     return;
   }
-  out.reset(rec_.instruments.size());
+  out.reset(scene_size_);
+}
+
+bool RecordingReplay::poll_exchange(double sim_time, InstrumentChange& out) {
+  const auto step = static_cast<std::int64_t>(std::llround(sim_time / rec_.dt));
+  const auto& ex = rec_.exchanges();
+  if (next_exchange_ >= ex.size() || ex[next_exchange_].step > step) return false;
+  out = ex[next_exchange_++].change;
+  return true;
+}
+
+void RecordingReplay::exchanged(const InstrumentChange&, std::span<const std::string> instruments) {
+  scene_size_ = instruments.size();
 }
 
 }  // namespace vcsim

@@ -277,4 +277,28 @@ void ForceLog::after_step(const Simulator& sim) {
   f_->out << '\n';
 }
 
+CommandRecorder::CommandRecorder(const Simulator& sim, std::string made_by) {
+  const Scenario& sc = sim.scenario();
+  rec_.scenario = sc.name;
+  rec_.scenario_file = sc.source;
+  rec_.dt = sim.dt();
+  rec_.instruments = sim.instrument_names();
+  rec_.model_hash = sim.model().hash();
+  rec_.made_by = std::move(made_by);
+}
+
+bool CommandRecorder::before_step(const Simulator&, const StepCommands& commands) {
+  rec_.append(commands);
+  return true;
+}
+
+void CommandRecorder::exchanged(const Simulator&, const InstrumentChange& change) {
+  rec_.append_exchange(change);
+}
+
+const CommandRecording& CommandRecorder::finish(const Simulator& sim) {
+  rec_.state_hash = sim.state().hash();
+  return rec_;
+}
+
 }  // namespace vcsim

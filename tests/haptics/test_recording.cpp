@@ -165,5 +165,118 @@ TEST(Recording, TheReplayChecksTheSceneAndGivesEachStepsCommands) {
   EXPECT_EQ(out.drive[0].mode, DriveCommand::Mode::kVelocity);
 }
 
+InstrumentChange add_b() {
+  InstrumentChange a;
+  a.kind = InstrumentChange::Kind::kAdd;
+  a.name = "b";
+  a.catalogue = "balloon-sc-3.0x15";
+  a.over = "i0";
+  a.max_nodes = 200;
+  a.tip_segment = 1.5e-3;
+  return a;
+}
+
+// A recording with instrument exchanges: rows after an exchange have the scene's instruments then
+// and a run never spans one; the file (version 2) reads back to the same bits and exchanges; a
+// truncation keeps the exchanges before the steps it keeps; the replay asks for each exchange
+// before the step it was made before.
+TEST(Recording, ExchangesChangeTheRowsAndReadBack) {
+  CommandRecording r = make(1);
+  StepCommands c;
+  c.reset(1);
+  for (int k = 0; k < 3; ++k) r.append(c);
+  r.append_exchange(add_b());
+  c.reset(2);
+  for (int k = 0; k < 2; ++k) r.append(c);  // the same values, a new run
+  InstrumentChange rm;
+  rm.kind = InstrumentChange::Kind::kRemove;
+  rm.name = "i0";
+  r.append_exchange(rm);
+  c.reset(1);
+  c.drive[0].translation = 0.25;
+  for (int k = 0; k < 2; ++k) r.append(c);
+  EXPECT_EQ(r.steps(), 7);
+  EXPECT_EQ(r.num_runs(), 3u);
+  EXPECT_EQ(r.scene_size(), 1u);
+  StepCommands got;
+  r.at(2, got);
+  EXPECT_EQ(got.drive.size(), 1u);
+  r.at(3, got);
+  EXPECT_EQ(got.drive.size(), 2u);
+  r.at(6, got);
+  ASSERT_EQ(got.drive.size(), 1u);
+  EXPECT_EQ(got.drive[0].translation, 0.25);
+
+  const std::string text = r.to_json();
+  EXPECT_NE(text.find("\"version\": 2"), std::string::npos);
+  const CommandRecording back = CommandRecording::parse(text, "rec.json");
+  ASSERT_EQ(back.exchanges().size(), 2u);
+  EXPECT_EQ(back.exchanges()[0].step, 3);
+  EXPECT_EQ(describe(back.exchanges()[0].change), "add b balloon-sc-3.0x15 over=i0");
+  EXPECT_EQ(back.exchanges()[0].change.max_nodes, 200);
+  EXPECT_TRUE(same_bits(back.exchanges()[0].change.tip_segment, 1.5e-3));
+  EXPECT_EQ(back.exchanges()[0].change.field, "exchanges[0]");
+  EXPECT_EQ(back.exchanges()[1].change.kind, InstrumentChange::Kind::kRemove);
+  for (std::int64_t k = 0; k < 7; ++k) {
+    StepCommands a, b;
+    r.at(k, a);
+    back.at(k, b);
+    expect_same(a, b);
+  }
+
+  RecordingReplay replay(back, std::vector<std::string>{"i0"}, 5e-4, 0, "rec.json");
+  InstrumentChange asked;
+  EXPECT_FALSE(replay.poll_exchange(2 * 5e-4, asked));
+  ASSERT_TRUE(replay.poll_exchange(3 * 5e-4, asked));
+  EXPECT_EQ(asked.name, "b");
+  EXPECT_FALSE(replay.poll_exchange(3 * 5e-4, asked)) << "once";
+  ASSERT_TRUE(replay.poll_exchange(5 * 5e-4, asked));
+  EXPECT_EQ(asked.name, "i0");
+  replay.exchanged(asked, std::vector<std::string>{"b"});
+  replay.poll(100.0, got);  // after the end: one still hand per instrument of the scene now
+  EXPECT_EQ(got.drive.size(), 1u);
+
+  CommandRecording cut = back;
+  cut.truncate(4);
+  EXPECT_EQ(cut.exchanges().size(), 1u);
+  EXPECT_EQ(cut.scene_size(), 2u);
+  cut.truncate(3);
+  EXPECT_TRUE(cut.exchanges().empty()) << "made before step 3: after the state of 3 steps";
+  EXPECT_NE(cut.to_json().find("\"version\": 1"), std::string::npos);
+}
+
+TEST(Recording, AMalformedExchangeIsAnErrorNamingTheField) {
+  CommandRecording r = make(1);
+  StepCommands c;
+  c.reset(1);
+  r.append(c);
+  r.append(c);  // one run of two steps
+  r.append_exchange(add_b());
+  c.reset(2);
+  r.append(c);
+  const std::string good = r.to_json();
+  EXPECT_EQ(CommandRecording::parse(good, "rec.json").steps(), 3);
+  auto field_of = [](std::string text) {
+    try {
+      CommandRecording::parse(text, "rec.json");
+    } catch (const InputError& e) {
+      return e.field();
+    }
+    return std::string("(accepted)");
+  };
+  std::string bad = good;
+  bad.replace(bad.find("add b"), 5, "put b");
+  EXPECT_EQ(field_of(bad), "exchanges[0].change");
+  bad = good;
+  bad.replace(bad.find("\"version\": 2"), 12, "\"version\": 1");
+  EXPECT_EQ(field_of(bad), "exchanges");
+  bad = good;  // the run of two steps over an exchange at step 1
+  bad.replace(bad.find("\"step\": 2,"), 10, "\"step\": 1,");
+  EXPECT_EQ(field_of(bad), "runs[0]");
+  bad = good;
+  bad.replace(bad.find("\"max_nodes\": 200"), 16, "\"max_nodes\": 900");
+  EXPECT_EQ(field_of(bad), "exchanges[0].max_nodes");
+}
+
 }  // namespace
 }  // namespace vcsim

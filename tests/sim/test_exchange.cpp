@@ -368,6 +368,34 @@ TEST(Exchange, TheSameExchangesAtTheSameTimesGiveTheSameState) {
   EXPECT_NE(a.hash, c.hash);
 }
 
+// A run with exchanges recorded (CommandRecorder, as `vcsim run --record` does), written and read
+// back, replays to the same state through a fresh simulator: the recording carries the exchanges.
+TEST(Exchange, ARecordedRunWithExchangesReplaysToTheSameState) {
+  std::string text = kExchangeTimeline;
+  text.replace(text.find("BALLOON"), 7, "115");
+  ScriptedTimeline tl = ScriptedTimeline::parse(text, "exchange-timeline.json");
+  test::TubeSpecs t;
+  const Scenario sc = test::tube_scenario(scratch("record"), t, kWireOnly);
+  Simulator sim(sc);
+  tl.bind(sim.instrument_names());
+  CommandRecorder recorder(sim, "test");
+  RunLoopSettings s;
+  s.end_time = tl.duration();
+  run_loop(sim, tl, s, &recorder);
+  const CommandRecording& rec = recorder.finish(sim);
+  ASSERT_EQ(rec.exchanges().size(), 2u);
+  EXPECT_EQ(rec.state_hash, sim.state().hash());
+
+  Simulator again(sc);
+  RecordingReplay replay(CommandRecording::parse(rec.to_json(), "rec.json"),
+                         again.instrument_names(), again.dt(), again.model().hash(), "rec.json");
+  s.end_time = (static_cast<double>(rec.steps()) - 0.5) * again.dt();
+  const RunLoopStats st = run_loop(again, replay, s);
+  EXPECT_EQ(st.exchanges, 2);
+  EXPECT_EQ(again.metrics().steps, rec.steps());
+  EXPECT_EQ(again.state().hash(), rec.state_hash);
+}
+
 // A timeline that removes an instrument still in the patient is bad input: the refusal is thrown
 // on from the run loop, naming the timeline's field.
 TEST(Exchange, ATimelineRemovingAnInsertedInstrumentIsAnInputError) {
