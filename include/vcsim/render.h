@@ -68,7 +68,7 @@ double magnification(const CArmPose& pose, const Vec3& p);
 // ---------------------------------------------------------------------------------------------
 // X-ray materials
 
-// One path-length channel each (two RGBA float targets).
+// One path-length channel each (three RGBA float targets).
 enum class XrayMaterial : std::uint8_t {
   kSoftTissue,  // the torso (every other part lies inside it)
   kLung,
@@ -78,8 +78,9 @@ enum class XrayMaterial : std::uint8_t {
   kNitinol,  // guidewire cores
   kSteel,    // 316L: catheter braid, wire cores
   kPtIr,     // Pt90/Ir10 coils and marker bands
+  kCoCr,     // cobalt-chromium (L-605): stent struts
 };
-inline constexpr int kNumXrayMaterials = 8;
+inline constexpr int kNumXrayMaterials = 9;
 std::string_view to_string(XrayMaterial m);
 
 enum class BeamEnergy : std::uint8_t { k60keV, k80keV };

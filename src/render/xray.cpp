@@ -28,6 +28,8 @@ std::string_view to_string(XrayMaterial m) {
       return "steel";
     case XrayMaterial::kPtIr:
       return "pt_ir";
+    case XrayMaterial::kCoCr:
+      return "cocr";
   }
   return "unknown";
 }
@@ -59,6 +61,10 @@ double attenuation_per_m(XrayMaterial m, BeamEnergy e) {
       break;
     case XrayMaterial::kPtIr:
       per_cm = e60 ? 93.0 : 187.0;
+      break;
+    // L-605 (above tungsten's K-edge at 69.5 keV the 80 keV value is the higher).
+    case XrayMaterial::kCoCr:
+      per_cm = e60 ? 14.8 : 15.4;
       break;
   }
   return per_cm * 100.0;
