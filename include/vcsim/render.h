@@ -118,10 +118,35 @@ TriangleMesh tube_mesh(std::span<const Vec3> nodes, std::span<const double> radi
 // keeping the winding. Returns the number of loops closed.
 int cap_boundary_loops(TriangleMesh& mesh);
 
+// Where the vertices of lumen_xray_mesh come from: each copies a vertex of the Lumen (a Lumen
+// vertex on a junction is copied into each segment's closed surface), or is the centre of a cap
+// (the mean of its boundary loop's vertices).
+struct LumenXraySource {
+  std::vector<int> vertex;      // (render vertices) the Lumen vertex it copies, -1: a cap's centre
+  std::vector<int> cap_centre;  // (caps) render vertex at the cap's centre
+  std::vector<int> cap_start;   // (caps + 1) each cap's loop in cap_loop
+  std::vector<int> cap_loop;    // render vertices of the loops
+};
+
 // The lumen as one closed surface per vessel segment (the triangles of each segment, boundary
 // loops at junctions and open ends capped by fans), wound outward, vertex_group = segment.
 // Material blood; the renderer adds the iodine channel from per-segment concentrations.
-XrayMesh lumen_xray_mesh(const Lumen& lumen);
+// `source` (optional) says where each vertex comes from, to move them as the lumen's lesions open.
+XrayMesh lumen_xray_mesh(const Lumen& lumen, LumenXraySource* source = nullptr);
+
+// The rendered lumen following the lesions' opening: the render vertices that copy a vertex the
+// lesions move (LesionMorph) and the caps whose loops hold any of them, so that a frame moves
+// only those, like the collision lumen does (morph_positions).
+struct LumenXrayMorph {
+  std::vector<int> vertex;  // render vertices that copy a morph vertex
+  std::vector<int> morph;   // (vertex) the index of that morph vertex in LesionMorph::vertices
+  std::vector<int> cap_centre, cap_start, cap_loop;  // the caps touched, as in LumenXraySource
+};
+LumenXrayMorph make_lumen_xray_morph(const LumenXraySource& source, const LesionMorph& morph);
+// Puts the morph vertices' positions (one per LesionMorph vertex, from morph_positions) into the
+// render vertices that copy them, then re-centres the caps around them.
+void apply_lumen_xray_morph(const LumenXrayMorph& m, std::span<const Vec3> morphed,
+                            std::span<Vec3> render_vertices);
 
 // A body part as an X-ray mesh: soft tissue and heart -> soft tissue, lung -> lung, bone ->
 // bone with fill `bone_fill` (a solid mesh stands for a cortical shell around marrow).
@@ -148,6 +173,30 @@ struct InstrumentVisual {
   double marker_radius_factor = 1.15;   // band radius / shaft radius
 };
 std::vector<XrayMesh> instrument_xray_meshes(const InstrumentVisual& inst);
+
+// ---------------------------------------------------------------------------------------------
+// Balloons and stents
+
+// An inflated balloon holds contrast diluted 1:1 with saline, the usual preparation (a fraction of
+// the 350 mgI/ml agent; docs/rendering.md cites it).
+inline constexpr float kBalloonContrastFraction = 0.5f;
+
+// An inflated balloon: a closed surface of revolution around its nodes (proximal first), radius
+// radii[i] at node i, filled with contrast at `contrast` (fraction of 350 mgI/ml): material
+// iodine with fill = contrast. Empty when fewer than two distinct nodes.
+XrayMesh balloon_xray_mesh(std::span<const Vec3> nodes, std::span<const double> radii,
+                           float contrast = kBalloonContrastFraction, int sides = 24);
+
+// A stent as a thin-walled tube along its rings: the outer surface at each ring's radius, the
+// inner `wall` m inside it (the strut thickness), closed at both ends (an annulus). The struts
+// cover a fraction of the wall, so the shell is drawn with that fill: a ray through the wall at
+// normal incidence meets mu strut_thickness metal_coverage, and any ray the mean metal along it.
+// Material CoCr with `fill`.
+XrayMesh stent_xray_mesh(std::span<const Vec3> rings, std::span<const double> radii, double wall,
+                         float fill, int sides = 16);
+// The fill of a stent's shell drawn as kCoCr: its metal coverage, scaled by its alloy's
+// attenuation over L-605's at the beam energy when the catalogue gives one.
+float stent_fill(const StentSpec& spec, BeamEnergy e);
 
 // Instruments for a demonstration frame along the tree's routes: a 6F guiding catheter
 // (polymer with a steel braid) from the access to the left main ostium, and a 0.014" nitinol
