@@ -308,19 +308,41 @@ void write_png_grey(const std::string& path, std::span<const std::uint8_t> pixel
 // catheter's braid (a small steel fraction of the wall) with its marker bands.
 InstrumentVisual instrument_visual(const InstrumentSpec& spec, const std::string& name);
 
-// The simulator's scene uploaded once (lumen with per-segment contrast, body context,
-// instruments); each frame moves the lumen with the heart, re-meshes the inserted part of every
-// instrument, draws and runs the image chain. Needs a current GL context for its whole life.
 // What a frame shows of the simulator's state, copied so that another thread can draw it while
 // the physics goes on (the anatomy and motion it also reads never change during a run).
+// A balloon as a frame shows it.
+struct BalloonFrame {
+  int instrument = -1;
+  double pressure = 0.0;       // Pa gauge; drawn when > 0
+  float contrast = 0.0f;       // fraction of 350 mgI/ml inside (kBalloonContrastFraction inflated)
+  std::vector<Vec3> nodes;     // (balloon nodes) its rod's nodes now, proximal first; empty when
+                               // the balloon is not in the body
+  std::vector<double> radius;  // (balloon nodes) BalloonState::radius (m)
+};
+// A stent as a frame shows it: crimped, on its balloon's nodes; deployed, at its rings in the
+// vessel moved with the heart to the frame's time.
+struct StentFrame {
+  int balloon = -1;  // index in ProcedureModel::balloons (its spec)
+  StentState::Phase phase = StentState::Phase::kCrimped;
+  std::vector<Vec3> rings;     // (rings) centres now (m); empty when not in the body
+  std::vector<double> radius;  // (rings) outer radius (m)
+};
 struct FrameSnapshot {
   double time = 0.0;                     // s (the lumen is moved to it)
   std::vector<std::vector<Vec3>> nodes;  // (instrument) inserted centreline, empty if outside
   std::vector<float> contrast;           // (segment)
+  std::vector<BalloonFrame> balloons;    // (balloon of ProcedureModel::balloons)
+  std::vector<StentFrame> stents;        // stent systems' stents
+  std::vector<LesionOpening> opening;    // (lesion) ProcedureState::opening; empty: as built
 };
 FrameSnapshot snapshot(const SimModel& model, const SimState& state);
 FrameSnapshot snapshot(const Simulator& sim);
 
+// The simulator's scene uploaded once (lumen with per-segment contrast, body context when the
+// anatomy has a heart, instruments); each frame moves the lumen with the heart and opens its
+// lesions as the snapshot has them, re-meshes the inserted part of every instrument, draws the
+// inflated balloons and the stents, and runs the image chain. Needs a current GL context for its
+// whole life.
 class SimFluoroscopy {
  public:
   // Reads the model's anatomy, body and instrument specs (never written during a run; the model
@@ -340,11 +362,18 @@ class SimFluoroscopy {
     int shaft = -1, radiopaque = -1;
     std::vector<int> markers;
   };
+  void show_opening(const std::vector<LesionOpening>& opening);
   FluoroRenderer renderer_;
+  const SimModel& model_;
   const CardiacMotion* motion_ = nullptr;
   int lumen_ = -1;
   std::vector<Vec3> lumen_rest_, lumen_now_;
+  // The lesions' opening the lumen shows, and the vertices it moves (rest anatomy).
+  LumenXrayMorph morph_;
+  std::vector<LesionOpening> shown_opening_;
+  std::vector<Vec3> morphed_;
   std::vector<Slots> instruments_;
+  std::vector<int> balloons_, stents_;  // mesh ids (balloon), (stent frame slot)
   std::vector<float> line_integral_;
 };
 
