@@ -248,12 +248,15 @@ class FluoroRenderer {
   // Moves a mesh's vertices (same count and topology; grouped meshes too, e.g. a beating lumen).
   void update_vertices(int id, std::span<const Vec3> vertices);
   void set_visible(int id, bool visible);
+  // Changes a mesh's fill (volume fraction of its material, e.g. a balloon's contrast).
+  void set_fill(int id, float fill);
   // A static mesh (e.g. the body context) is drawn once per pose and beam energy into a cached
   // line integral that each kLineIntegral frame starts from; the others are drawn every frame.
   void set_static(int id, bool is_static);
   // Concentration per group (e.g. per segment), fraction of 350 mgI/ml; at most 256 groups.
   void set_group_concentration(std::span<const float> c);
   void set_beam_energy(BeamEnergy e) { energy_ = e; }
+  BeamEnergy beam_energy() const { return energy_; }
 
   // Draws every visible mesh for the pose. kLineIntegral (frames) accumulates p = sum_k w_k L_k
   // directly into one float target; kPathLengths accumulates one channel per material, then

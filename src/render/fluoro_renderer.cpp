@@ -338,6 +338,12 @@ void FluoroRenderer::set_visible(int id, bool visible) {
   g.visible = visible;
 }
 
+void FluoroRenderer::set_fill(int id, float fill) {
+  auto& g = impl_->meshes.at(static_cast<std::size_t>(id));
+  if (g.is_static && g.fill != fill) impl_->static_valid = false;
+  g.fill = fill;
+}
+
 void FluoroRenderer::set_group_concentration(std::span<const float> c) {
   impl_->conc.fill(0.0f);
   std::copy_n(c.begin(), std::min<std::size_t>(c.size(), kMaxGroups), impl_->conc.begin());

@@ -218,7 +218,10 @@ void SimFluoroscopy::frame(const FrameSnapshot& snap, const CArmPose& pose,
         bf->radius.size() == bf->nodes.size()) {
       const XrayMesh m = balloon_xray_mesh(bf->nodes, bf->radius, bf->contrast);
       shown = !m.mesh.triangles.empty();
-      if (shown) renderer_.update_mesh(balloons_[b], m.mesh);
+      if (shown) {
+        renderer_.update_mesh(balloons_[b], m.mesh);
+        renderer_.set_fill(balloons_[b], m.fill);
+      }
     }
     renderer_.set_visible(balloons_[b], shown);
   }
@@ -226,11 +229,17 @@ void SimFluoroscopy::frame(const FrameSnapshot& snap, const CArmPose& pose,
   for (std::size_t k = 0; k < stents_.size(); ++k) {
     const StentFrame* sf = k < snap.stents.size() ? &snap.stents[k] : nullptr;
     bool shown = false;
-    if (sf && sf->rings.size() >= 2 && sf->radius.size() == sf->rings.size() && sf->balloon >= 0) {
-      const StentSpec& spec = *model_.procedure.balloons[sf->balloon].stent;
-      const XrayMesh m = stent_xray_mesh(sf->rings, sf->radius, spec.strut_thickness, 0.0f);
+    const auto& models = model_.procedure.balloons;
+    if (sf && sf->rings.size() >= 2 && sf->radius.size() == sf->rings.size() && sf->balloon >= 0 &&
+        sf->balloon < static_cast<int>(models.size()) && models[sf->balloon].stent) {
+      const StentSpec& spec = *models[sf->balloon].stent;
+      const XrayMesh m = stent_xray_mesh(sf->rings, sf->radius, spec.strut_thickness,
+                                         stent_fill(spec, renderer_.beam_energy()));
       shown = !m.mesh.triangles.empty();
-      if (shown) renderer_.update_mesh(stents_[k], m.mesh);
+      if (shown) {
+        renderer_.update_mesh(stents_[k], m.mesh);
+        renderer_.set_fill(stents_[k], m.fill);
+      }
     }
     renderer_.set_visible(stents_[k], shown);
   }

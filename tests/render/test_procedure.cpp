@@ -434,6 +434,17 @@ TEST_F(RenderProcedureGl, InflatedBalloonShowsItsWaist) {
   const double rmin = *std::min_element(bs.radius.begin() + 3, bs.radius.end() - 3);
   const double px = tf.pose.fov / TubeFrames::kSize / magnification(tf.pose, tf.pose.isocentre);
   EXPECT_NEAR(waist, 2.0 * rmin, 2.0 * px);
+  // The contrast it holds weights it: a quarter-strength mixture shows half the 1:1's.
+  FrameSnapshot weaker = inflated;
+  weaker.balloons[0].contrast = 0.5f * kBalloonContrastFraction;
+  const std::vector<float> c = tf.line_integral(weaker);
+  double full_sum = 0.0, weak_sum = 0.0;
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    full_sum += a[k] - b[k];
+    weak_sum += c[k] - b[k];
+  }
+  EXPECT_GT(full_sum, 0.0);
+  EXPECT_NEAR(weak_sum, 0.5 * full_sum, 1e-3 * full_sum);
 }
 
 // The final angiogram: contrast in the tube before the balloon and after it opened the lesion at
