@@ -12,6 +12,7 @@
 #include <map>
 #include <memory>
 
+#include "gl_fixture.h"
 #include "vcsim/render.h"
 #include "vcsim/units.h"
 
@@ -285,24 +286,7 @@ TEST(Snapshot, CopiesTheBalloonTheStentAndTheLesionsOpening) {
 // ---------------------------------------------------------------------------------------------
 // GL
 
-class RenderProcedureGl : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    try {
-      gl_ = std::make_unique<HeadlessGlContext>();
-    } catch (const std::exception& e) {
-      why_ = e.what();
-    }
-  }
-  static void TearDownTestSuite() { gl_.reset(); }
-  void SetUp() override {
-    if (!gl_) GTEST_SKIP() << "EGL unavailable: " << why_;
-  }
-  static std::unique_ptr<HeadlessGlContext> gl_;
-  static std::string why_;
-};
-std::unique_ptr<HeadlessGlContext> RenderProcedureGl::gl_;
-std::string RenderProcedureGl::why_;
+class RenderProcedureGl : public test::GlSuite {};
 
 // The ray through pixel (i, j): from the source, unit direction.
 Vec3 pixel_ray(const CArmPose& p, int size, int i, int j) {
