@@ -70,6 +70,10 @@ struct ProcedureModel {
   static constexpr double kMaxOpening = 1.5;
 };
 
+// Where ring k of a stent's n rings sits on its balloon while crimped: m from the balloon's distal
+// end (the stent centred on the nominal working length; k = 0 at the stent's distal end).
+double stent_ring_from_distal(const BalloonModel& balloon, std::size_t k, std::size_t n);
+
 // The balloons of the scene's instruments (specs[i] of solver.instruments[i]) and the tree's
 // lesions with their mechanics (one per lesion, or empty for the defaults). Throws InputError.
 ProcedureModel make_procedure_model(const VesselTree& tree, const Lumen& lumen,

@@ -68,7 +68,7 @@ double magnification(const CArmPose& pose, const Vec3& p);
 // ---------------------------------------------------------------------------------------------
 // X-ray materials
 
-// One path-length channel each (two RGBA float targets).
+// One path-length channel each (three RGBA float targets).
 enum class XrayMaterial : std::uint8_t {
   kSoftTissue,  // the torso (every other part lies inside it)
   kLung,
@@ -78,8 +78,9 @@ enum class XrayMaterial : std::uint8_t {
   kNitinol,  // guidewire cores
   kSteel,    // 316L: catheter braid, wire cores
   kPtIr,     // Pt90/Ir10 coils and marker bands
+  kCoCr,     // cobalt-chromium (L-605): stent struts
 };
-inline constexpr int kNumXrayMaterials = 8;
+inline constexpr int kNumXrayMaterials = 9;
 std::string_view to_string(XrayMaterial m);
 
 enum class BeamEnergy : std::uint8_t { k60keV, k80keV };
@@ -117,10 +118,35 @@ TriangleMesh tube_mesh(std::span<const Vec3> nodes, std::span<const double> radi
 // keeping the winding. Returns the number of loops closed.
 int cap_boundary_loops(TriangleMesh& mesh);
 
+// Where the vertices of lumen_xray_mesh come from: each copies a vertex of the Lumen (a Lumen
+// vertex on a junction is copied into each segment's closed surface), or is the centre of a cap
+// (the mean of its boundary loop's vertices).
+struct LumenXraySource {
+  std::vector<int> vertex;      // (render vertices) the Lumen vertex it copies, -1: a cap's centre
+  std::vector<int> cap_centre;  // (caps) render vertex at the cap's centre
+  std::vector<int> cap_start;   // (caps + 1) each cap's loop in cap_loop
+  std::vector<int> cap_loop;    // render vertices of the loops
+};
+
 // The lumen as one closed surface per vessel segment (the triangles of each segment, boundary
 // loops at junctions and open ends capped by fans), wound outward, vertex_group = segment.
 // Material blood; the renderer adds the iodine channel from per-segment concentrations.
-XrayMesh lumen_xray_mesh(const Lumen& lumen);
+// `source` (optional) says where each vertex comes from, to move them as the lumen's lesions open.
+XrayMesh lumen_xray_mesh(const Lumen& lumen, LumenXraySource* source = nullptr);
+
+// The rendered lumen following the lesions' opening: the render vertices that copy a vertex the
+// lesions move (LesionMorph) and the caps whose loops hold any of them, so that a frame moves
+// only those, like the collision lumen does (morph_positions).
+struct LumenXrayMorph {
+  std::vector<int> vertex;  // render vertices that copy a morph vertex
+  std::vector<int> morph;   // (vertex) the index of that morph vertex in LesionMorph::vertices
+  std::vector<int> cap_centre, cap_start, cap_loop;  // the caps touched, as in LumenXraySource
+};
+LumenXrayMorph make_lumen_xray_morph(const LumenXraySource& source, const LesionMorph& morph);
+// Puts the morph vertices' positions (one per LesionMorph vertex, from morph_positions) into the
+// render vertices that copy them, then re-centres the caps around them.
+void apply_lumen_xray_morph(const LumenXrayMorph& m, std::span<const Vec3> morphed,
+                            std::span<Vec3> render_vertices);
 
 // A body part as an X-ray mesh: soft tissue and heart -> soft tissue, lung -> lung, bone ->
 // bone with fill `bone_fill` (a solid mesh stands for a cortical shell around marrow).
@@ -147,6 +173,30 @@ struct InstrumentVisual {
   double marker_radius_factor = 1.15;   // band radius / shaft radius
 };
 std::vector<XrayMesh> instrument_xray_meshes(const InstrumentVisual& inst);
+
+// ---------------------------------------------------------------------------------------------
+// Balloons and stents
+
+// An inflated balloon holds contrast diluted 1:1 with saline, the usual preparation (a fraction of
+// the 350 mgI/ml agent; docs/rendering.md cites it).
+inline constexpr float kBalloonContrastFraction = 0.5f;
+
+// An inflated balloon: a closed surface of revolution around its nodes (proximal first), radius
+// radii[i] at node i, filled with contrast at `contrast` (fraction of 350 mgI/ml): material
+// iodine with fill = contrast. Empty when fewer than two distinct nodes.
+XrayMesh balloon_xray_mesh(std::span<const Vec3> nodes, std::span<const double> radii,
+                           float contrast = kBalloonContrastFraction, int sides = 24);
+
+// A stent as a thin-walled tube along its rings: the outer surface at each ring's radius, the
+// inner `wall` m inside it (the strut thickness), closed at both ends (an annulus). The struts
+// cover a fraction of the wall, so the shell is drawn with that fill: a ray through the wall at
+// normal incidence meets mu strut_thickness metal_coverage, and any ray the mean metal along it.
+// Material CoCr with `fill`.
+XrayMesh stent_xray_mesh(std::span<const Vec3> rings, std::span<const double> radii, double wall,
+                         float fill, int sides = 16);
+// The fill of a stent's shell drawn as kCoCr: its metal coverage, scaled by its alloy's
+// attenuation over L-605's at the beam energy when the catalogue gives one.
+float stent_fill(const StentSpec& spec, BeamEnergy e);
 
 // Instruments for a demonstration frame along the tree's routes: a 6F guiding catheter
 // (polymer with a steel braid) from the access to the left main ostium, and a 0.014" nitinol
@@ -198,12 +248,15 @@ class FluoroRenderer {
   // Moves a mesh's vertices (same count and topology; grouped meshes too, e.g. a beating lumen).
   void update_vertices(int id, std::span<const Vec3> vertices);
   void set_visible(int id, bool visible);
+  // Changes a mesh's fill (volume fraction of its material, e.g. a balloon's contrast).
+  void set_fill(int id, float fill);
   // A static mesh (e.g. the body context) is drawn once per pose and beam energy into a cached
   // line integral that each kLineIntegral frame starts from; the others are drawn every frame.
   void set_static(int id, bool is_static);
   // Concentration per group (e.g. per segment), fraction of 350 mgI/ml; at most 256 groups.
   void set_group_concentration(std::span<const float> c);
   void set_beam_energy(BeamEnergy e) { energy_ = e; }
+  BeamEnergy beam_energy() const { return energy_; }
 
   // Draws every visible mesh for the pose. kLineIntegral (frames) accumulates p = sum_k w_k L_k
   // directly into one float target; kPathLengths accumulates one channel per material, then
@@ -258,15 +311,32 @@ void write_png_grey(const std::string& path, std::span<const std::uint8_t> pixel
 // catheter's braid (a small steel fraction of the wall) with its marker bands.
 InstrumentVisual instrument_visual(const InstrumentSpec& spec, const std::string& name);
 
-// The simulator's scene uploaded once (lumen with per-segment contrast, body context,
-// instruments); each frame moves the lumen with the heart, re-meshes the inserted part of every
-// instrument, draws and runs the image chain. Needs a current GL context for its whole life.
 // What a frame shows of the simulator's state, copied so that another thread can draw it while
 // the physics goes on (the anatomy and motion it also reads never change during a run).
+// A balloon as a frame shows it.
+struct BalloonFrame {
+  int instrument = -1;
+  double pressure = 0.0;       // Pa gauge; drawn when > 0
+  float contrast = 0.0f;       // fraction of 350 mgI/ml inside (kBalloonContrastFraction inflated)
+  std::vector<Vec3> nodes;     // (balloon nodes) its rod's nodes now, proximal first; empty when
+                               // the balloon is not in the body
+  std::vector<double> radius;  // (balloon nodes) BalloonState::radius (m)
+};
+// A stent as a frame shows it: crimped, on its balloon's nodes; deployed, at its rings in the
+// vessel moved with the heart to the frame's time.
+struct StentFrame {
+  int balloon = -1;  // index in ProcedureModel::balloons (its spec)
+  StentState::Phase phase = StentState::Phase::kCrimped;
+  std::vector<Vec3> rings;     // (rings) centres now (m); empty when not in the body
+  std::vector<double> radius;  // (rings) outer radius (m)
+};
 struct FrameSnapshot {
   double time = 0.0;                     // s (the lumen is moved to it)
   std::vector<std::vector<Vec3>> nodes;  // (instrument) inserted centreline, empty if outside
   std::vector<float> contrast;           // (segment)
+  std::vector<BalloonFrame> balloons;    // (balloon of ProcedureModel::balloons)
+  std::vector<StentFrame> stents;        // stent systems' stents
+  std::vector<LesionOpening> opening;    // (lesion) ProcedureState::opening; empty: as built
   // The model whose instruments `nodes` follows (the state's): after an exchange of instruments
   // the renderer draws each by its own catalogue entry. Null: the renderer's model.
   std::shared_ptr<const SimModel> model;
@@ -274,10 +344,17 @@ struct FrameSnapshot {
 FrameSnapshot snapshot(const SimModel& model, const SimState& state);
 FrameSnapshot snapshot(const Simulator& sim);
 
+// The simulator's scene uploaded once (lumen with per-segment contrast, body context when the
+// anatomy has a heart, instruments); each frame moves the lumen with the heart and opens its
+// lesions as the snapshot has them, re-meshes the inserted part of every instrument, draws the
+// inflated balloons and the stents, and runs the image chain. Needs a current GL context for its
+// whole life.
 class SimFluoroscopy {
  public:
-  // Reads the model's anatomy, body and instrument specs (never written during a run; the model
-  // must outlive the renderer).
+  // Reads the model's anatomy, body and instrument specs (never written during a run). The model
+  // must outlive the renderer unless the snapshots carry theirs (FrameSnapshot::model, as every
+  // snapshot of a Simulator's state does): from the first such frame on the renderer reads it
+  // and keeps it alive, so an exchange may free the model it was built from.
   SimFluoroscopy(const SimModel& model, int size, BeamEnergy energy = BeamEnergy::k60keV);
   SimFluoroscopy(const Simulator& sim, int size, BeamEnergy energy = BeamEnergy::k60keV)
       : SimFluoroscopy(sim.model(), size, energy) {}
@@ -299,13 +376,24 @@ class SimFluoroscopy {
   // instrument of the same name and catalogue entry kept, others added; slots no longer used
   // hidden and kept for later.
   void reslot(const SimModel& model);
+  void show_opening(const std::vector<LesionOpening>& opening);
+  // Meshes for the balloons and stents of `model` not yet drawn (an exchange may add some: the
+  // procedure's balloons keep their index for the whole run, so the lists only grow).
+  void add_procedure_slots(const SimModel& model);
   FluoroRenderer renderer_;
+  const SimModel* model_;  // the one built from, then the latest snapshot's (slotted_)
   const CardiacMotion* motion_ = nullptr;
   int lumen_ = -1;
   std::vector<Vec3> lumen_rest_, lumen_now_;
+  // The lesions' opening the lumen shows, and the vertices it moves (rest anatomy).
+  LumenXrayMorph morph_;
+  std::vector<LesionOpening> shown_opening_;
+  std::vector<Vec3> morphed_;
   std::vector<Slots> instruments_;
   std::vector<Slots> spare_;                 // slots of instruments removed (hidden)
   std::shared_ptr<const SimModel> slotted_;  // the model instruments_ follows (null: the first)
+  std::vector<int> balloons_, stents_;  // mesh ids (balloon), (stent frame slot)
+  std::size_t balloon_models_ = 0;     // balloons of the procedure model with meshes
   std::vector<float> line_integral_;
 };
 

@@ -9,28 +9,6 @@
 
 namespace vcsim {
 
-TreeHit locate(const VesselTree& tree, const Vec3& p) {
-  TreeHit best;
-  best.outside = std::numeric_limits<double>::infinity();
-  for (int si = 0; si < tree.num_segments(); ++si) {
-    const VesselSegment& seg = tree.segments[si];
-    double s0 = 0.0;
-    for (std::size_t k = 0; k + 1 < seg.points.size(); ++k) {
-      const Vec3 a = seg.points[k], d = seg.points[k + 1] - a;
-      const double len2 = d.squaredNorm(), len = std::sqrt(len2);
-      const double t = len2 > 0.0 ? std::clamp((p - a).dot(d) / len2, 0.0, 1.0) : 0.0;
-      const double r = seg.radii[k] + t * (seg.radii[k + 1] - seg.radii[k]);
-      const double out = (p - (a + t * d)).norm() - r;
-      if (out < best.outside) {
-        best.outside = out;
-        best.loc = {si, s0 + t * len};
-      }
-      s0 += len;
-    }
-  }
-  return best;
-}
-
 bool is_descendant(const VesselTree& tree, int seg, int ancestor) {
   for (int s = seg; s >= 0; s = tree.segments[s].parent)
     if (s == ancestor) return true;
@@ -62,6 +40,14 @@ void consider_segment(const VesselTree& tree, int si, const Vec3& p, double lo, 
 }
 
 }  // namespace
+
+TreeHit locate(const VesselTree& tree, const Vec3& p) {
+  TreeHit best;
+  best.outside = std::numeric_limits<double>::infinity();
+  constexpr double kAll = std::numeric_limits<double>::infinity();
+  for (int si = 0; si < tree.num_segments(); ++si) consider_segment(tree, si, p, -kAll, kAll, best);
+  return best;
+}
 
 TreeHit locate_near(const VesselTree& tree, const Vec3& p, const TreeLocation& hint,
                     double window) {

@@ -129,6 +129,10 @@ BalloonModel make_balloon_model(const SolverModel& solver, std::span<const Instr
   return bm;
 }
 
+double stent_ring_from_distal(const BalloonModel& balloon, std::size_t k, std::size_t n) {
+  return ring_from_distal(balloon, k, n);
+}
+
 ProcedureModel make_procedure_model(const VesselTree& tree, const Lumen& lumen,
                                     const SolverModel& solver,
                                     std::span<const InstrumentSpec> specs,

@@ -1,12 +1,13 @@
 // The path-length renderer (OpenGL 3.3 core). For each pixel's ray from the source, the path
 // length through a closed surface is the sum over its crossings of +t where the ray leaves
 // (back faces) and -t where it enters (front faces), t the distance from the source. Additive
-// blending into two RGBA32F targets gives one channel per material; a second pass reduces them
+// blending into three RGBA32F targets gives one channel per material; a second pass reduces them
 // to the line integral p = sum_k w_k L_k (one float per pixel) for readback. docs/rendering.md.
 #define GL_GLEXT_PROTOTYPES
 #include <GL/glcorearb.h>
 
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <stdexcept>
 #include <string>
@@ -36,7 +37,7 @@ void main() {
 // the NDC depth, which is not linear in distance). Measured from a reference distance (the
 // isocentre's) so that float sums of large opposite terms keep their precision.
 // Two variants: LINE_INTEGRAL writes sum_k w_k L_k straight into one float target (the frame);
-// otherwise one channel per material into two RGBA targets (inspection and tests).
+// otherwise one channel per material into three RGBA targets (inspection and tests).
 const char* kAccumFs = R"(
 in vec3 v_pos;
 flat in int v_group;
@@ -48,10 +49,11 @@ uniform int u_use_groups;
 uniform float u_wplain, u_wgroup;
 layout(location = 0) out float o;
 #else
-uniform vec4 u_plain0, u_plain1;
-uniform vec4 u_group0, u_group1;
+uniform vec4 u_plain0, u_plain1, u_plain2;
+uniform vec4 u_group0, u_group1, u_group2;
 layout(location = 0) out vec4 o0;
 layout(location = 1) out vec4 o1;
+layout(location = 2) out vec4 o2;
 #endif
 void main() {
   float d = distance(v_pos, u_source) - u_ref;
@@ -62,6 +64,7 @@ void main() {
 #else
   o0 = s * (u_plain0 + c * u_group0);
   o1 = s * (u_plain1 + c * u_group1);
+  o2 = s * (u_plain2 + c * u_group2);
 #endif
 }
 )";
@@ -74,12 +77,13 @@ void main() {
 )";
 
 const char* kReduceFs = R"(#version 330 core
-uniform sampler2D u_l0, u_l1;
-uniform vec4 u_w0, u_w1;
+uniform sampler2D u_l0, u_l1, u_l2;
+uniform vec4 u_w0, u_w1, u_w2;
 layout(location = 0) out float o;
 void main() {
   ivec2 ij = ivec2(gl_FragCoord.xy);
-  o = dot(texelFetch(u_l0, ij, 0), u_w0) + dot(texelFetch(u_l1, ij, 0), u_w1);
+  o = dot(texelFetch(u_l0, ij, 0), u_w0) + dot(texelFetch(u_l1, ij, 0), u_w1) +
+      dot(texelFetch(u_l2, ij, 0), u_w2);
 }
 )";
 
@@ -157,7 +161,8 @@ struct FluoroRenderer::Impl {
   };
   std::vector<GpuMesh> meshes;
   GLuint accum_prog = 0, line_prog = 0, reduce_prog = 0;
-  GLuint accum_fbo = 0, reduce_fbo = 0, tex_l0 = 0, tex_l1 = 0, tex_p = 0, empty_vao = 0;
+  GLuint accum_fbo = 0, reduce_fbo = 0, tex_l0 = 0, tex_l1 = 0, tex_l2 = 0, tex_p = 0,
+         empty_vao = 0;
   // Line integral of the static meshes for the pose and energy it was drawn for.
   GLuint static_fbo = 0, tex_static = 0;
   bool static_valid = false;
@@ -168,8 +173,8 @@ struct FluoroRenderer::Impl {
   // Uniform locations of the accumulation programs ([0] per material, [1] line integral).
   GLint u_mvp[2] = {-1, -1}, u_source[2] = {-1, -1}, u_ref[2] = {-1, -1}, u_conc[2] = {-1, -1},
         u_use_groups[2] = {-1, -1};
-  GLint u_plain0 = -1, u_plain1 = -1, u_group0 = -1, u_group1 = -1, u_wplain = -1, u_wgroup = -1;
-  GLint u_w0 = -1, u_w1 = -1, u_l0 = -1, u_l1 = -1;
+  GLint u_plain[3] = {-1, -1, -1}, u_group[3] = {-1, -1, -1}, u_wplain = -1, u_wgroup = -1;
+  GLint u_w[3] = {-1, -1, -1}, u_l[3] = {-1, -1, -1};
 
   void upload(GpuMesh& g, const TriangleMesh& m, const std::vector<int>* groups) {
     std::vector<float> pos(3 * m.vertices.size());
@@ -220,26 +225,27 @@ FluoroRenderer::FluoroRenderer(int size) : impl_(std::make_unique<Impl>()), size
     m.u_conc[k] = loc(prog, "u_conc");
     m.u_use_groups[k] = loc(prog, "u_use_groups");
   }
-  m.u_plain0 = loc(m.accum_prog, "u_plain0");
-  m.u_plain1 = loc(m.accum_prog, "u_plain1");
-  m.u_group0 = loc(m.accum_prog, "u_group0");
-  m.u_group1 = loc(m.accum_prog, "u_group1");
+  for (int t = 0; t < 3; ++t) {
+    const std::string i = std::to_string(t);
+    m.u_plain[t] = loc(m.accum_prog, ("u_plain" + i).c_str());
+    m.u_group[t] = loc(m.accum_prog, ("u_group" + i).c_str());
+    m.u_w[t] = loc(m.reduce_prog, ("u_w" + i).c_str());
+    m.u_l[t] = loc(m.reduce_prog, ("u_l" + i).c_str());
+  }
   m.u_wplain = loc(m.line_prog, "u_wplain");
   m.u_wgroup = loc(m.line_prog, "u_wgroup");
-  m.u_w0 = loc(m.reduce_prog, "u_w0");
-  m.u_w1 = loc(m.reduce_prog, "u_w1");
-  m.u_l0 = loc(m.reduce_prog, "u_l0");
-  m.u_l1 = loc(m.reduce_prog, "u_l1");
 
   m.tex_l0 = float_texture(GL_RGBA32F, GL_RGBA, size);
   m.tex_l1 = float_texture(GL_RGBA32F, GL_RGBA, size);
+  m.tex_l2 = float_texture(GL_RGBA32F, GL_RGBA, size);
   m.tex_p = float_texture(GL_R32F, GL_RED, size);
   glGenFramebuffers(1, &m.accum_fbo);
   glBindFramebuffer(GL_FRAMEBUFFER, m.accum_fbo);
   glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, m.tex_l0, 0);
   glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT1, GL_TEXTURE_2D, m.tex_l1, 0);
-  const GLenum bufs[2] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1};
-  glDrawBuffers(2, bufs);
+  glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT2, GL_TEXTURE_2D, m.tex_l2, 0);
+  const GLenum bufs[3] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1, GL_COLOR_ATTACHMENT2};
+  glDrawBuffers(3, bufs);
   check_framebuffer("path-length");
   glGenFramebuffers(1, &m.reduce_fbo);
   glBindFramebuffer(GL_FRAMEBUFFER, m.reduce_fbo);
@@ -264,8 +270,8 @@ FluoroRenderer::~FluoroRenderer() {
   glDeleteVertexArrays(1, &m.empty_vao);
   GLuint fbos[3] = {m.accum_fbo, m.reduce_fbo, m.static_fbo};
   glDeleteFramebuffers(3, fbos);
-  GLuint tex[4] = {m.tex_l0, m.tex_l1, m.tex_p, m.tex_static};
-  glDeleteTextures(4, tex);
+  GLuint tex[5] = {m.tex_l0, m.tex_l1, m.tex_l2, m.tex_p, m.tex_static};
+  glDeleteTextures(5, tex);
   glDeleteProgram(m.accum_prog);
   glDeleteProgram(m.line_prog);
   glDeleteProgram(m.reduce_prog);
@@ -332,6 +338,12 @@ void FluoroRenderer::set_visible(int id, bool visible) {
   g.visible = visible;
 }
 
+void FluoroRenderer::set_fill(int id, float fill) {
+  auto& g = impl_->meshes.at(static_cast<std::size_t>(id));
+  if (g.is_static && g.fill != fill) impl_->static_valid = false;
+  g.fill = fill;
+}
+
 void FluoroRenderer::set_group_concentration(std::span<const float> c) {
   impl_->conc.fill(0.0f);
   std::copy_n(c.begin(), std::min<std::size_t>(c.size(), kMaxGroups), impl_->conc.begin());
@@ -347,6 +359,8 @@ void FluoroRenderer::render(const CArmPose& pose, FluoroOutput output) {
   const bool per_material = output == FluoroOutput::kPathLengths;
   const int k = per_material ? 0 : 1;
   const auto w = line_integral_weights(energy_);
+  std::array<float, 12> w12{};  // the weights in three vec4s
+  std::copy(w.begin(), w.end(), w12.begin());
   const int iodine = static_cast<int>(XrayMaterial::kIodine);
 
   glViewport(0, 0, size_, size_);
@@ -370,13 +384,13 @@ void FluoroRenderer::render(const CArmPose& pose, FluoroOutput output) {
       if (!g.visible || g.count == 0 || (!all && g.is_static != statics)) continue;
       const int mat = static_cast<int>(g.material);
       if (per_material) {
-        float plain[8] = {}, grouped[8] = {};
+        float plain[12] = {}, grouped[12] = {};
         plain[mat] = g.fill;
         if (g.groups) grouped[iodine] = g.fill;
-        glUniform4fv(m.u_plain0, 1, plain);
-        glUniform4fv(m.u_plain1, 1, plain + 4);
-        glUniform4fv(m.u_group0, 1, grouped);
-        glUniform4fv(m.u_group1, 1, grouped + 4);
+        for (int t = 0; t < 3; ++t) {
+          glUniform4fv(m.u_plain[t], 1, plain + 4 * t);
+          glUniform4fv(m.u_group[t], 1, grouped + 4 * t);
+        }
       } else {
         if (w[mat] == 0.0f && !g.groups) continue;
         glUniform1f(m.u_wplain, g.fill * w[mat]);
@@ -437,14 +451,14 @@ void FluoroRenderer::render(const CArmPose& pose, FluoroOutput output) {
     // Reduction of the channels to the line integral.
     glBindFramebuffer(GL_FRAMEBUFFER, m.reduce_fbo);
     glUseProgram(m.reduce_prog);
-    glUniform4fv(m.u_w0, 1, w.data());
-    glUniform4fv(m.u_w1, 1, w.data() + 4);
+    const GLuint tex[3] = {m.tex_l0, m.tex_l1, m.tex_l2};
+    for (int t = 0; t < 3; ++t) {
+      glUniform4fv(m.u_w[t], 1, w12.data() + 4 * t);
+      glActiveTexture(static_cast<GLenum>(GL_TEXTURE0 + t));
+      glBindTexture(GL_TEXTURE_2D, tex[t]);
+      glUniform1i(m.u_l[t], t);
+    }
     glActiveTexture(GL_TEXTURE0);
-    glBindTexture(GL_TEXTURE_2D, m.tex_l0);
-    glActiveTexture(GL_TEXTURE1);
-    glBindTexture(GL_TEXTURE_2D, m.tex_l1);
-    glUniform1i(m.u_l0, 0);
-    glUniform1i(m.u_l1, 1);
     glBindVertexArray(m.empty_vao);
     glDrawArrays(GL_TRIANGLES, 0, 3);
   }
@@ -471,21 +485,19 @@ void FluoroRenderer::read_line_integral(std::vector<float>& out) const {
 
 void FluoroRenderer::read_path_lengths(std::vector<float>& out) const {
   const std::size_t n = static_cast<std::size_t>(size_);
-  std::vector<float> a(n * n * 4), b(n * n * 4);
+  std::array<std::vector<float>, 3> a;
   glBindFramebuffer(GL_READ_FRAMEBUFFER, impl_->accum_fbo);
-  glReadBuffer(GL_COLOR_ATTACHMENT0);
-  glReadPixels(0, 0, size_, size_, GL_RGBA, GL_FLOAT, a.data());
-  glReadBuffer(GL_COLOR_ATTACHMENT1);
-  glReadPixels(0, 0, size_, size_, GL_RGBA, GL_FLOAT, b.data());
+  for (int t = 0; t < 3; ++t) {
+    a[t].resize(n * n * 4);
+    glReadBuffer(static_cast<GLenum>(GL_COLOR_ATTACHMENT0 + t));
+    glReadPixels(0, 0, size_, size_, GL_RGBA, GL_FLOAT, a[t].data());
+  }
   glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
   out.resize(n * n * kNumXrayMaterials);
   for (std::size_t r = 0; r < n; ++r)
     for (std::size_t c = 0; c < n; ++c) {
       const std::size_t src = ((n - 1 - r) * n + c) * 4, dst = (r * n + c) * kNumXrayMaterials;
-      for (int k = 0; k < 4; ++k) {
-        out[dst + k] = a[src + k];
-        out[dst + 4 + k] = b[src + k];
-      }
+      for (int k = 0; k < kNumXrayMaterials; ++k) out[dst + k] = a[k / 4][src + k % 4];
     }
 }
 

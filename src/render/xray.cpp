@@ -28,6 +28,8 @@ std::string_view to_string(XrayMaterial m) {
       return "steel";
     case XrayMaterial::kPtIr:
       return "pt_ir";
+    case XrayMaterial::kCoCr:
+      return "cocr";
   }
   return "unknown";
 }
@@ -59,6 +61,10 @@ double attenuation_per_m(XrayMaterial m, BeamEnergy e) {
       break;
     case XrayMaterial::kPtIr:
       per_cm = e60 ? 93.0 : 187.0;
+      break;
+    // L-605 (above tungsten's K-edge at 69.5 keV the 80 keV value is the higher).
+    case XrayMaterial::kCoCr:
+      per_cm = e60 ? 14.8 : 15.4;
       break;
   }
   return per_cm * 100.0;
@@ -177,7 +183,7 @@ int cap_boundary_loops(TriangleMesh& mesh) {
   return loops;
 }
 
-XrayMesh lumen_xray_mesh(const Lumen& lumen) {
+XrayMesh lumen_xray_mesh(const Lumen& lumen, LumenXraySource* source) {
   XrayMesh out;
   out.name = "lumen";
   out.material = XrayMaterial::kBlood;
@@ -187,6 +193,10 @@ XrayMesh lumen_xray_mesh(const Lumen& lumen) {
   std::vector<std::vector<int>> by_segment(num_segments);
   for (int t = 0; t < src.num_triangles(); ++t) by_segment[lumen.triangle_segment[t]].push_back(t);
   std::vector<int> local(src.num_vertices(), -1);
+  if (source) {
+    *source = {};
+    source->cap_start.push_back(0);
+  }
   for (int s = 0; s < num_segments; ++s) {
     if (by_segment[s].empty()) continue;
     // This segment's triangles as their own mesh, closed at junctions and open ends.
@@ -206,8 +216,20 @@ XrayMesh lumen_xray_mesh(const Lumen& lumen) {
       part.triangles.push_back(tri);
     }
     for (int v : used) local[v] = -1;
+    const int copied = part.num_vertices(), open_triangles = part.num_triangles();
     cap_boundary_loops(part);
     const int base = out.mesh.num_vertices();
+    if (source) {
+      source->vertex.insert(source->vertex.end(), used.begin(), used.end());
+      source->vertex.insert(source->vertex.end(), part.vertices.size() - used.size(), -1);
+      // Each cap is a fan (loop edge, centre): its centre is the vertex past the copied ones.
+      for (int c = copied; c < part.num_vertices(); ++c) {
+        source->cap_centre.push_back(base + c);
+        for (int t = open_triangles; t < part.num_triangles(); ++t)
+          if (part.triangles[t][2] == c) source->cap_loop.push_back(base + part.triangles[t][1]);
+        source->cap_start.push_back(static_cast<int>(source->cap_loop.size()));
+      }
+    }
     out.mesh.vertices.insert(out.mesh.vertices.end(), part.vertices.begin(), part.vertices.end());
     out.vertex_group.insert(out.vertex_group.end(), part.vertices.size(), s);
     // The lumen's normals face into the vessel; the renderer wants them out of the blood.
@@ -216,6 +238,45 @@ XrayMesh lumen_xray_mesh(const Lumen& lumen) {
   }
   out.mesh.recompute_normals();
   return out;
+}
+
+LumenXrayMorph make_lumen_xray_morph(const LumenXraySource& source, const LesionMorph& morph) {
+  LumenXrayMorph m;
+  std::unordered_map<int, int> index;  // Lumen vertex -> its place in the morph
+  for (std::size_t k = 0; k < morph.vertices.size(); ++k)
+    index.emplace(morph.vertices[k], static_cast<int>(k));
+  std::vector<char> moved(source.vertex.size(), 0);
+  for (std::size_t v = 0; v < source.vertex.size(); ++v) {
+    const auto it = source.vertex[v] >= 0 ? index.find(source.vertex[v]) : index.end();
+    if (it == index.end()) continue;
+    m.vertex.push_back(static_cast<int>(v));
+    m.morph.push_back(it->second);
+    moved[v] = 1;
+  }
+  m.cap_start.push_back(0);
+  for (std::size_t c = 0; c < source.cap_centre.size(); ++c) {
+    const auto loop =
+        std::span(source.cap_loop)
+            .subspan(static_cast<std::size_t>(source.cap_start[c]),
+                     static_cast<std::size_t>(source.cap_start[c + 1] - source.cap_start[c]));
+    if (std::none_of(loop.begin(), loop.end(), [&](int v) { return moved[v] != 0; })) continue;
+    m.cap_centre.push_back(source.cap_centre[c]);
+    m.cap_loop.insert(m.cap_loop.end(), loop.begin(), loop.end());
+    m.cap_start.push_back(static_cast<int>(m.cap_loop.size()));
+  }
+  return m;
+}
+
+void apply_lumen_xray_morph(const LumenXrayMorph& m, std::span<const Vec3> morphed,
+                            std::span<Vec3> render_vertices) {
+  for (std::size_t i = 0; i < m.vertex.size(); ++i)
+    render_vertices[m.vertex[i]] = morphed[m.morph[i]];
+  for (std::size_t c = 0; c < m.cap_centre.size(); ++c) {
+    Vec3 sum = Vec3::Zero();
+    for (int k = m.cap_start[c]; k < m.cap_start[c + 1]; ++k) sum += render_vertices[m.cap_loop[k]];
+    const int n = m.cap_start[c + 1] - m.cap_start[c];
+    if (n > 0) render_vertices[m.cap_centre[c]] = sum / n;
+  }
 }
 
 XrayMesh body_part_mesh(const BodyPart& part, float bone_fill) {
@@ -305,6 +366,39 @@ std::vector<XrayMesh> instrument_xray_meshes(const InstrumentVisual& inst) {
       out.push_back({inst.name + "_marker", tube_mesh(q, rq, 12), XrayMaterial::kPtIr, 1.0f, {}});
   }
   return out;
+}
+
+XrayMesh balloon_xray_mesh(std::span<const Vec3> nodes, std::span<const double> radii,
+                           float contrast, int sides) {
+  // Iodine counts its own term (the inflation medium's water is soft tissue, which the torso
+  // already counts), weighted by its fraction of 350 mgI/ml.
+  return {"balloon", tube_mesh(nodes, radii, sides), XrayMaterial::kIodine, contrast, {}};
+}
+
+XrayMesh stent_xray_mesh(std::span<const Vec3> rings, std::span<const double> radii, double wall,
+                         float fill, int sides) {
+  XrayMesh x{"stent", tube_mesh(rings, radii, sides), XrayMaterial::kCoCr, fill, {}};
+  if (x.mesh.triangles.empty()) return x;
+  // The inner surface, wound inward: with the outer one the closed surface of the wall. The same
+  // nodes give tube_mesh the same rings and frames, so the two walls stay parallel.
+  std::vector<double> inner(rings.size());
+  for (std::size_t k = 0; k < rings.size(); ++k) {
+    const double r = radii.size() == rings.size() ? radii[k] : radii[0];
+    inner[k] = std::max(0.5 * r, r - wall);
+  }
+  const TriangleMesh in = tube_mesh(rings, inner, sides);
+  const int base = x.mesh.num_vertices();
+  x.mesh.vertices.insert(x.mesh.vertices.end(), in.vertices.begin(), in.vertices.end());
+  for (const auto& t : in.triangles)
+    x.mesh.triangles.push_back({base + t[0], base + t[2], base + t[1]});
+  x.mesh.recompute_normals();
+  return x;
+}
+
+float stent_fill(const StentSpec& spec, BeamEnergy e) {
+  const double mu = e == BeamEnergy::k60keV ? spec.attenuation_60kev : spec.attenuation_80kev;
+  const double scale = mu > 0.0 ? mu / attenuation_per_m(XrayMaterial::kCoCr, e) : 1.0;
+  return static_cast<float>(spec.metal_coverage * scale);
 }
 
 std::vector<InstrumentVisual> demo_instruments(const VesselTree& tree) {

@@ -191,6 +191,8 @@ TEST(Timeline, BadFilesNameFileAndField) {
        "expected an object"},
       {R"({"keyframes": [{"t_s": 0, "balloon_pressure_atm": 99}]})",
        "keyframes[0].balloon_pressure_atm", "[0, 30]"},
+      {R"({"keyframes": [{"t_s": 0, "balloon_pressure_atm": -1}]})",
+       "keyframes[0].balloon_pressure_atm", "[0, 30]"},
       {R"({"keyframes": [{"t_s": 0, "syringe_flow_ml_s": "fast"}]})",
        "keyframes[0].syringe_flow_ml_s", "expected a number"},
       {R"({"keyframes": [{"t_s": 0, "buttons": 2.5}]})", "keyframes[0].buttons", "integer"},

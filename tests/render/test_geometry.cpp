@@ -173,6 +173,10 @@ TEST(Materials, WeightsCountWhatEachMaterialAddsOverSoftTissue) {
     EXPECT_GT(w[static_cast<int>(XrayMaterial::kPtIr)], w[static_cast<int>(XrayMaterial::kSteel)]);
   }
   EXPECT_DOUBLE_EQ(attenuation_per_m(XrayMaterial::kIodine, BeamEnergy::k60keV), 265.0);
+  // Stent struts: L-605 (clinical.md), above tungsten's K-edge the higher at 80 keV.
+  EXPECT_DOUBLE_EQ(attenuation_per_m(XrayMaterial::kCoCr, BeamEnergy::k60keV), 1480.0);
+  EXPECT_DOUBLE_EQ(attenuation_per_m(XrayMaterial::kCoCr, BeamEnergy::k80keV), 1540.0);
+  EXPECT_EQ(to_string(XrayMaterial::kCoCr), "cocr");
 }
 
 TEST(Contrast, LeftCoronaryTreeOnly) {

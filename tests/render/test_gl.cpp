@@ -5,6 +5,7 @@
 #include <cmath>
 #include <memory>
 
+#include "gl_fixture.h"
 #include "vcsim/render.h"
 
 namespace vcsim {
@@ -12,24 +13,7 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-class RenderGl : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    try {
-      gl_ = std::make_unique<HeadlessGlContext>();
-    } catch (const std::exception& e) {
-      why_ = e.what();
-    }
-  }
-  static void TearDownTestSuite() { gl_.reset(); }
-  void SetUp() override {
-    if (!gl_) GTEST_SKIP() << "EGL unavailable: " << why_;
-  }
-  static std::unique_ptr<HeadlessGlContext> gl_;
-  static std::string why_;
-};
-std::unique_ptr<HeadlessGlContext> RenderGl::gl_;
-std::string RenderGl::why_;
+class RenderGl : public test::GlSuite {};
 
 // A latitude-longitude sphere wound outward.
 TriangleMesh sphere(const Vec3& c, double r, int rings = 96, int sectors = 192) {

@@ -110,6 +110,14 @@ TEST(RunCli, BadInputExitsWithTwo) {
       run_cli("run " + (d / "s.json").string() + " --no-frames --out " + (d / "o").string());
   EXPECT_EQ(r.status, 2) << r.err;
   EXPECT_NE(r.err.find("timeline.json"), std::string::npos) << r.err;
+  // A timeline that inflates a balloon in a scene without one.
+  write(d / "timeline.json", R"({"keyframes": [
+    {"t_s": 0, "instruments": {"wire": {"translation_mm": 0, "rotation_deg": 0}}},
+    {"t_s": 0.5, "balloon_pressure_atm": 8}]})");
+  r = run_cli("run " + (d / "s.json").string() + " --no-frames --out " + (d / "o").string());
+  EXPECT_EQ(r.status, 2) << r.err;
+  EXPECT_NE(r.err.find("balloon_pressure_atm"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("timeline.json"), std::string::npos) << r.err;
   r = run_cli("run no_such_scenario");
   EXPECT_EQ(r.status, 2);
   EXPECT_NE(r.err.find("SCENARIO"), std::string::npos) << r.err;

@@ -146,6 +146,25 @@ TEST(Scenario, BadInputNamesTheField) {
                "fine_step_jump_n");
   expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"fine_step_hold_ms\": 2000"),
                "fine_step_hold_ms");
+  // The procedure's keys: a pressure out of range, a place without an instrument, lesion
+  // mechanics and targets out of range, an over naming no instrument.
+  expect_error(edit("{\"action\": \"navigate\"",
+                    "{\"action\": \"inflate\", \"pressure_atm\": -1}, "
+                    "{\"action\": \"navigate\""),
+               "autopilot[0].pressure_atm");
+  expect_error(edit("{\"action\": \"navigate\"",
+                    "{\"action\": \"place\", \"lesion\": 0}, {\"action\": \"navigate\""),
+               "autopilot[0].instrument");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"lesions\": [{\"recoil\": 1.5}]"),
+               "lesions[0].recoil");
+  expect_error(
+      edit("\"name\": \"t\"", "\"name\": \"t\", \"lesions\": [{\"crossing_force_n\": -1}]"),
+      "lesions[0].crossing_force_n");
+  expect_error(edit("\"name\": \"t\"",
+                    "\"name\": \"t\", \"targets\": {\"residual_stenosis_percent\": 120}"),
+               "targets.residual_stenosis_percent");
+  expect_error(edit("\"name\": \"wire\", ", "\"name\": \"wire\", \"over\": \"nothing\", "),
+               "instruments[0].over");
   // Instrument exchange in the plan: an add declares an instrument as instruments[] does; phases
   // name instruments in the scene when they start; a removal leaves nothing inside or over it.
   const std::string add_b =

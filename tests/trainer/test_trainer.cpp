@@ -113,11 +113,12 @@ TEST(TrainerControls, PedalsSyringeSelectionAndTheCArm) {
   EXPECT_EQ(c.selected(), 0);
   c.key(GLFW_KEY_TAB, GLFW_PRESS, 0, 0.0);
   EXPECT_EQ(c.selected(), 1);
-  EXPECT_DOUBLE_EQ(c.primary_deg(), 40.0);
+  const double start = sc.fluoro.primary_deg;  // the C-arm starts at the scenario's angles
+  EXPECT_DOUBLE_EQ(c.primary_deg(), start);
   c.update(1e6);
   c.key(GLFW_KEY_L, GLFW_PRESS, 0, 1e6);
   for (int k = 1; k <= 10; ++k) c.update(1e6 + 5e4 * k);  // frames of 50 ms
-  EXPECT_NEAR(c.primary_deg(), 50.0, 1e-9);               // 20 deg/s for 0.5 s
+  EXPECT_NEAR(c.primary_deg(), start + 10.0, 1e-9);       // 20 deg/s for 0.5 s
   c.key(GLFW_KEY_F1, GLFW_PRESS, 0, 2e6);
   EXPECT_EQ(c.primary_deg(), 0.0);
   EXPECT_EQ(c.secondary_deg(), 0.0);
@@ -237,8 +238,11 @@ std::string replay_hash(const fs::path& dir, const std::string& scenario = "defa
 TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameState) {
   const Scratch scratch_dir("session");
   const fs::path& d = scratch_dir.d;
-  // The pedal, a push of the J wire, an injection, then the C-arm from LAO 40 CAU 30 to AP.
+  // The spider view (F2, LAO 45 CAU 30), the pedal, a push of the J wire, an injection, then the
+  // C-arm to AP.
   std::ofstream(d / "s.json") << R"({"events": [
+    {"t_s": 0.1, "key": "F2", "action": "press"},
+    {"t_s": 0.2, "key": "F2", "action": "release"},
     {"t_s": 0.3, "key": "SPACE", "action": "press"},
     {"t_s": 0.4, "key": "W", "action": "press"},
     {"t_s": 1.6, "key": "W", "action": "release"},
@@ -284,7 +288,7 @@ TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameSta
   EXPECT_GT(mean, 15.0);
   EXPECT_LT(mean, 240.0);
   EXPECT_GT(std::sqrt(var), 3.0) << "a flat panel";
-  EXPECT_GT(diff, 4.0) << "LAO 40 CAU 30 and AP look the same";
+  EXPECT_GT(diff, 4.0) << "LAO 45 CAU 30 and AP look the same";
   // The overlay's fluoroscopy clock is drawn (amber text) and reads differently in the two.
   const std::vector<int> ta = amber_pixels(a, lao), tb = amber_pixels(b, ap);
   EXPECT_GT(ta.size(), 20u);
