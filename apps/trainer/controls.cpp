@@ -153,6 +153,8 @@ void Controls::key(int k, int action, int mods, double now_us) {
       set_balloon(cmd_.balloon_pressure - s_.balloon_step, now_us);
     } else if (k == GLFW_KEY_BACKSLASH) {
       set_balloon(0.0, now_us);
+    } else if ((k == GLFW_KEY_ENTER || k == GLFW_KEY_KP_ENTER) && deploy_pressure_ > 0.0) {
+      set_balloon(deploy_pressure_, now_us);  // the stent system's nominal pressure
     } else if (k == GLFW_KEY_P) {
       actions_.push_back(Action::kTogglePause);
     } else if (k == GLFW_KEY_B || k == GLFW_KEY_BACKSPACE) {
@@ -250,6 +252,21 @@ void Controls::select(int instrument, double now_us) {
   if (instrument < 0 || instrument >= num_instruments()) return;
   selected_ = instrument;
   event_changed(now_us);  // the one that was moving stops
+}
+
+void Controls::set_instruments(std::vector<std::string> instruments, double now_us) {
+  if (instruments == names_) return;
+  const std::string was = names_.empty() ? std::string() : names_[static_cast<std::size_t>(selected_)];
+  int pick = -1, same = -1;
+  for (std::size_t i = 0; i < instruments.size(); ++i) {
+    if (std::find(names_.begin(), names_.end(), instruments[i]) == names_.end() && pick < 0)
+      pick = static_cast<int>(i);
+    if (instruments[i] == was) same = static_cast<int>(i);
+  }
+  names_ = std::move(instruments);
+  selected_ = pick >= 0 ? pick : (same >= 0 ? same : 0);
+  cmd_.drive.assign(names_.size(), DriveCommand{});
+  event_changed(now_us);
 }
 
 void Controls::set_preset(int i) {

@@ -87,11 +87,17 @@ class Controls {
   void set_fluoro_area(double x0, double y0, double x1, double y1);
   // Menu items and sliders (the same effects as their keys).
   void select(int instrument, double now_us);
+  // The scene's instruments changed (an exchange, a restart): every hand lets go; the selection
+  // goes to an instrument that was not there before, else stays on its name, else the first.
+  void set_instruments(std::vector<std::string> instruments, double now_us);
   void set_preset(int i);
   void set_field(int i);
   void set_inject_flow(double m3_s) { s_.inject_flow = m3_s; }
   void set_balloon(double pa, double now_us);
   void set_deploy(bool on, double now_us);
+  // The pressure Enter inflates to: the nominal pressure of the scene's stent system (else of its
+  // balloon); 0 for none.
+  void set_deploy_pressure(double pa) { deploy_pressure_ = pa; }
 
   // Once per frame: speeds grow with the time held, the C-arm and the table move. Returns true
   // when the commands changed since the last call, by an event or here (then hand them to the
@@ -131,6 +137,7 @@ class Controls {
   ControlSettings s_;
   OperatorCommands cmd_;
   int selected_ = 0;
+  double deploy_pressure_ = 0.0;  // Pa
   std::map<int, double> keys_;  // key -> when pressed (now_us)
   int mods_ = 0;
   bool fluoro_key_ = false, cine_key_ = false, inject_key_ = false, deploy_ = false;

@@ -150,7 +150,7 @@ void Viewer::draw_side_panel(float x, float y, float w, float h) {
                 static_cast<unsigned long long>(view_.device.connections),
                 static_cast<unsigned long long>(view_.device.messages_accepted));
   }
-  const Scenario& sc = physics_.model().scenario;
+  const Scenario& sc = scene_model().scenario;
   if (!sc.landmarks.empty()) {
     ImGui::Separator();
     for (std::size_t k = 0; k < sc.landmarks.size(); ++k)
@@ -205,28 +205,57 @@ void Viewer::draw_menu() {
         controls_.select(i, now_us());
     }
     ImGui::Separator();
-    // Exchange: the slot's instrument must be out of the patient. The engine cannot swap an
-    // instrument's model during a run yet. ENGINE HOOK (issue 25, the complete PCI): once the
-    // simulator can replace instrument i's spec (Simulator/SimModel), send the request to the
-    // physics thread here (a Request::kExchange with the catalogue name), record it in the
-    // command recording's header so that `vcsim run --replay` rebuilds the same scene, and
-    // enable these items.
-    if (ImGui::BeginMenu("Exchange selected for")) {
-      const int sel = controls_.selected();
-      const auto su = static_cast<std::size_t>(sel);
+    // Exchanges (docs/trainer.md): made by the physics thread between two steps and recorded;
+    // the engine refuses what cannot be (an instrument still in the patient, one another rides
+    // on), and the status line says why.
+    const SimModel& md = scene_model();
+    const int sel = controls_.selected();
+    const auto su = static_cast<std::size_t>(sel);
+    if (su < md.specs.size()) {
+      const ScenarioInstrument& si = md.scenario.instruments[su];
+      const InstrumentKind kind = md.specs[su].kind;
+      const bool wire = kind == InstrumentKind::kGuidewire;
       const bool out = su < view_.depth.size() && view_.depth[su] <= 1e-3;
-      const InstrumentKind kind = physics_.model().specs[su].kind;
-      for (const InstrumentSpec& spec : catalogue_.items) {
-        const bool fits = spec.kind == kind || (kind == InstrumentKind::kGuidewire) ==
-                                                   (spec.kind == InstrumentKind::kGuidewire);
-        if (!fits) continue;
-        if (ImGui::MenuItem(spec.name.c_str(), nullptr, false, true))
-          status_ = out ? "exchange for " + spec.name +
-                              ": waits for the engine's instrument swap (issue 25)"
-                        : "pull " + controls_.name(sel) + " out of the patient first";
-        if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", spec.description.c_str());
+      if (ImGui::BeginMenu("Replace selected by")) {
+        for (const InstrumentSpec& spec : catalogue_.items) {
+          // A wire by a wire; a catheter by a catheter, balloon or stent system.
+          if ((spec.kind == InstrumentKind::kGuidewire) != wire) continue;
+          if (ImGui::MenuItem(spec.name.c_str())) {
+            if (out)
+              ask_replace(sel, spec);
+            else
+              status_ = "pull " + controls_.name(sel) + " out of the patient first";
+          }
+          if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", spec.description.c_str());
+        }
+        ImGui::EndMenu();
       }
-      ImGui::EndMenu();
+      // Rapid exchange: a balloon or stent catheter rides on the selected wire inside its guide.
+      if (ImGui::BeginMenu("Add over selected wire", wire)) {
+        for (const InstrumentSpec& spec : catalogue_.items) {
+          if (!spec.balloon) continue;
+          if (ImGui::MenuItem(spec.name.c_str())) ask_add(spec, si.inside, si.name);
+          if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", spec.description.c_str());
+        }
+        ImGui::EndMenu();
+      }
+      if (ImGui::BeginMenu("Add a wire into selected", !wire)) {
+        for (const InstrumentSpec& spec : catalogue_.items) {
+          if (spec.kind != InstrumentKind::kGuidewire) continue;
+          if (ImGui::MenuItem(spec.name.c_str())) ask_add(spec, si.name, "");
+          if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", spec.description.c_str());
+        }
+        ImGui::EndMenu();
+      }
+      if (ImGui::MenuItem("Remove selected", nullptr, false, controls_.num_instruments() > 1)) {
+        InstrumentChange c;
+        c.kind = InstrumentChange::Kind::kRemove;
+        c.name = si.name;
+        c.source = "trainer";
+        c.field = "menu";
+        physics_.exchange(c);
+        status_ = "asked: " + describe(c);
+      }
     }
     ImGui::EndMenu();
   }
@@ -241,10 +270,16 @@ void Viewer::draw_menu() {
         controls_.set_balloon(a * kAtm, now_us());
     }
     ImGui::Separator();
-    if (ImGui::MenuItem("Deploy stent (hold Enter)")) {
-      controls_.set_deploy(true, now_us());
-      deploy_until_us_ = now_us() + 5e5;
-      status_ = "stent deployment sent (the engine's stent arrives with issue 25)";
+    // A balloon-expandable stent deploys by its balloon: inflated to the nominal pressure of the
+    // stent system in the scene, then deflated, the stent stays (docs/procedure.md).
+    for (std::size_t i = 0; i < scene_model().specs.size(); ++i) {
+      const InstrumentSpec& spec = scene_model().specs[i];
+      if (!spec.balloon) continue;
+      char name[96];
+      std::snprintf(name, sizeof name, "%s: nominal %.0f atm", view_.instruments.size() > i
+                    ? view_.instruments[i].c_str() : spec.name.c_str(),
+                    spec.balloon->nominal_pressure / kAtm);
+      if (ImGui::MenuItem(name)) controls_.set_balloon(spec.balloon->nominal_pressure, now_us());
     }
     ImGui::EndMenu();
   }
@@ -266,7 +301,7 @@ void Viewer::draw_ui() {
   draw_fluoro_panel(0.0f, top, side);
   draw_side_panel(side, top, static_cast<float>(fw) - side, avail_h);
   if (show3d_) {
-    if (!view3d_) view3d_ = std::make_unique<View3D>(physics_.model(), 384);
+    if (!view3d_) view3d_ = std::make_unique<View3D>(scene_model(), 384);
     view3d_->draw(view_.frame, controls_.selected());
     const float s = std::min(300.0f, 0.45f * side);
     ImGui::SetNextWindowPos(ImVec2(side - s - 8.0f, top + side - s - 30.0f), ImGuiCond_Appearing);
@@ -295,7 +330,7 @@ void Viewer::draw_ui() {
         "E (hold)             inject contrast at the set flow\n"
         "J / L, I / K         C-arm RAO / LAO, CAU / CRA;  F1-F7 standard views\n"
         "+ / - (or wheel)     field size;  Ctrl + arrows  table pan\n"
-        "[ / ]  \\            indeflator -1 / +1 atm, deflate;  Enter (hold) deploy stent\n"
+        "[ / ]  \\            indeflator -1 / +1 atm, deflate;  Enter: the stent system's nominal pressure\n"
         "P pause, B rewind 5 s, Ctrl+R restart, G 3D view, H keys, Esc end and save\n"
         "Gamepad: left stick drive, right stick C-arm, A fluoro, B inject, X cine,\n"
         "         LB/RB select, triggers field size, d-pad table, Back pause, Start rewind");

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <optional>
 
 #include "vcsim/core.h"
 
@@ -68,6 +69,14 @@ void PhysicsThread::request(Request r, double seconds) {
   cv_.notify_all();
 }
 
+void PhysicsThread::exchange(const InstrumentChange& c) {
+  {
+    std::lock_guard lock(m_);
+    exchanges_.push_back(c);
+  }
+  cv_.notify_all();
+}
+
 bool PhysicsThread::latest(ViewState& out) {
   std::lock_guard lock(m_);
   if (view_.version == out.version) return false;
@@ -109,6 +118,8 @@ void PhysicsThread::publish(bool paused) {
   for (std::size_t k = 0; k < v.landmarks.size(); ++k)
     v.landmarks[k] = sim_.metrics().landmarks[k].reached ? 1 : 0;
   v.recorded_steps = recording_.steps();
+  v.instruments = sim_.instrument_names();
+  v.exchanges = exchanges_made_;
   v.message = message_;
   std::lock_guard lock(m_);
   v.version = view_.version + 1;
@@ -116,6 +127,12 @@ void PhysicsThread::publish(bool paused) {
 }
 
 void PhysicsThread::poll_commands() {
+  // The device's exchanges first (the commands below are then for the scene they make), each
+  // made or refused and answered.
+  if (device_)
+    while (device_->poll_exchange(sim_.time(), change_))
+      if (std::optional<InputError> why = apply_exchange(change_))
+        device_->exchange_refused(change_, *why);
   // What the window's hands do (copied under the lock), then the device for what it drives.
   {
     std::lock_guard lock(m_);
@@ -126,13 +143,6 @@ void PhysicsThread::poll_commands() {
     used_seq_ = op_.seq;
   }
   if (!device_) return;
-  // A session changes no instruments yet (docs/trainer.md): an exchange the device asks for is
-  // refused and answered.
-  while (device_->poll_exchange(sim_.time(), change_))
-    device_->exchange_refused(
-        change_, InputError("trainer", "exchange",
-                            "expected no instrument exchange in a trainer session (not supported "
-                            "yet; vcsim run --device igtl takes them)"));
   device_->poll(sim_.time(), dev_cmds_);
   const std::uint64_t mask = device_->commanded_mask();
   for (std::size_t i = 0; i < cmds_.drive.size() && i < 64 && i < dev_cmds_.drive.size(); ++i)
@@ -140,6 +150,36 @@ void PhysicsThread::poll_commands() {
   if (cmds_.syringe_flow == 0.0) cmds_.syringe_flow = dev_cmds_.syringe_flow;
   cmds_.balloon_pressure = std::max(cmds_.balloon_pressure, dev_cmds_.balloon_pressure);
   cmds_.buttons |= dev_cmds_.buttons;
+}
+
+std::optional<InputError> PhysicsThread::apply_exchange(const InstrumentChange& c) {
+  try {
+    sim_.exchange(c);
+  } catch (const InputError& e) {
+    message_ = std::string("exchange refused: ") + e.what();
+    return e;
+  }
+  recording_.append_exchange(c);
+  ++exchanges_made_;
+  scene_changed(c);
+  // A rewind stays on this side of the exchange: the snapshots start again after the next step
+  // (a snapshot of this very moment would truncate the recording to before the exchange).
+  ring_.clear();
+  next_snapshot_ = sim_.time();
+  message_ = describe(c);
+  return std::nullopt;
+}
+
+void PhysicsThread::scene_changed(const InstrumentChange& c) {
+  const auto n = static_cast<std::size_t>(sim_.num_instruments());
+  cmds_.reset(n);
+  dev_cmds_.reset(n);
+  {
+    // The window's next commands are for the new scene (set_operator keeps this size).
+    std::lock_guard lock(m_);
+    op_.drive.assign(n, DriveCommand{});
+  }
+  if (device_) device_->exchanged(c, sim_.instrument_names());
 }
 
 void PhysicsThread::handle(Request r, double seconds) {
@@ -155,6 +195,10 @@ void PhysicsThread::handle(Request r, double seconds) {
       break;
     case Request::kRewind: {
       // The newest snapshot at least `seconds` before now (or the oldest kept).
+      if (ring_.empty()) {
+        message_ = "nothing to rewind to yet: an exchange was just made";
+        break;
+      }
       const double target = sim_.time() - seconds;
       while (ring_.size() > 1 && ring_.back().state.time() > target + 1e-9) ring_.pop_back();
       const Saved& s = ring_.back();
@@ -169,7 +213,8 @@ void PhysicsThread::handle(Request r, double seconds) {
       message_ = buf;
       break;
     }
-    case Request::kRestart:
+    case Request::kRestart: {
+      const std::vector<std::string> before = sim_.instrument_names();
       sim_.restore(initial_);
       ring_.clear();
       ring_.push_back({initial_, 0.0});
@@ -178,7 +223,16 @@ void PhysicsThread::handle(Request r, double seconds) {
       recording_.clear();
       ++restarts_;
       message_ = "restarted";
+      if (sim_.instrument_names() != before) {
+        // The scenario's instruments again: a remove of what the session had added, for the
+        // device's log.
+        InstrumentChange undo;
+        undo.kind = InstrumentChange::Kind::kRemove;
+        undo.name = "instruments exchanged since the start (restart)";
+        scene_changed(undo);
+      }
       break;
+    }
   }
 }
 
@@ -216,7 +270,13 @@ void PhysicsThread::loop() {
       std::lock_guard lock(m_);
       paused = paused_;
     }
-    if (!todo.empty() || paused) publish(paused);
+    std::vector<InstrumentChange> changes;
+    {
+      std::lock_guard lock(m_);
+      changes.swap(exchanges_);
+    }
+    for (const InstrumentChange& c : changes) apply_exchange(c);
+    if (!todo.empty() || !changes.empty() || paused) publish(paused);
     todo.clear();
     if (paused) {
       std::unique_lock lock(m_);

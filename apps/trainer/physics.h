@@ -10,6 +10,7 @@
 #include <deque>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -55,6 +56,8 @@ struct ViewState {
   double lag = 0.0;                         // s, the last step's lag behind the wall clock
   int rollbacks = 0;
   std::vector<std::uint8_t> landmarks;  // (landmark) 1 when reached
+  std::vector<std::string> instruments;  // the scene's, in order (an exchange changes them)
+  int exchanges = 0;                     // instrument exchanges made in the session
   IgtlStats device;
   bool has_device = false;
   std::int64_t recorded_steps = 0;
@@ -81,6 +84,10 @@ class PhysicsThread {
   // From the window's thread.
   void set_operator(const OperatorCommands& c);
   void request(Request r, double seconds = 0.0);
+  // An instrument exchange (docs/scenarios.md, "Instrument exchange"): queued, made between two
+  // steps, recorded; a refusal becomes the view's message. A rewind never goes back across one
+  // (the snapshots start again after it); a restart does.
+  void exchange(const InstrumentChange& c);
   // Copies the latest view into `out` when it is newer than out.version; false otherwise.
   bool latest(ViewState& out);
 
@@ -91,6 +98,7 @@ class PhysicsThread {
   RunLoopStats loop_stats() const { return stats_; }
   double fluoro_time() const { return fluoro_time_; }
   int rewinds() const { return rewinds_; }
+  int exchanges() const { return exchanges_made_; }
   int restarts() const { return restarts_; }
 
   // Snapshots for a rewind: one every kSnapshotEvery s of simulated time, the last kSnapshots.
@@ -103,6 +111,11 @@ class PhysicsThread {
   void publish(bool paused);
   void handle(Request r, double seconds);
   void poll_commands();
+  // Makes `c` between two steps; the engine's refusal (also in message_) when it refuses it.
+  std::optional<InputError> apply_exchange(const InstrumentChange& c);
+  // The scene's instruments changed (an exchange, a restart): commands resized, the device bound
+  // to the new order.
+  void scene_changed(const InstrumentChange& c);
 
   Simulator sim_;
   IgtlServer* device_;
@@ -115,7 +128,8 @@ class PhysicsThread {
   double next_snapshot_ = 0.0;
   CommandRecording recording_;
   StepCommands cmds_, dev_cmds_;
-  InstrumentChange change_;  // one a device asks for (refused)
+  InstrumentChange change_;  // one a device asks for
+  int exchanges_made_ = 0;
   std::vector<HandFeedback> feedback_;
   double fluoro_time_ = 0.0;
   int rewinds_ = 0, restarts_ = 0;
@@ -131,6 +145,7 @@ class PhysicsThread {
   bool quit_ = false, paused_ = false;
   OperatorCommands op_;
   std::vector<std::pair<Request, double>> requests_;
+  std::vector<InstrumentChange> exchanges_;  // asked for by the window, not yet made
   ViewState view_;  // the latest copy handed over
   ViewState back_;  // filled by the physics thread outside the lock, then swapped in
 };

@@ -105,7 +105,8 @@ void upload(unsigned vao, unsigned vbo, unsigned nbo, unsigned ebo, const std::v
 }  // namespace
 
 View3D::View3D(const SimModel& model, int size)
-    : model_(model), motion_(model.motion ? &*model.motion : nullptr), size_(size) {
+    : anatomy_(model.anatomy), motion_(model.motion ? &*model.motion : nullptr), size_(size) {
+  for (const InstrumentSpec& spec : model.specs) radius_.push_back(0.5 * spec.outer_diameter);
   glGenFramebuffers(1, &fbo_);
   glGenTextures(1, &color_);
   glBindTexture(GL_TEXTURE_2D, color_);
@@ -221,11 +222,15 @@ void View3D::draw(const FrameSnapshot& frame, int selected) {
     int instrument;
   };
   std::vector<Part> parts;
+  if (frame.model) {
+    radius_.clear();
+    for (const InstrumentSpec& spec : frame.model->specs) radius_.push_back(0.5 * spec.outer_diameter);
+  }
   for (std::size_t i = 0; i < frame.nodes.size(); ++i) {
     const std::vector<Vec3>& nodes = frame.nodes[i];
     if (nodes.size() < 2) continue;
     // Thicker than life (at least 2 mm across) so that a wire shows at the view's scale.
-    const double r = std::max(1.0e-3, 0.5 * model_.specs[i].outer_diameter);
+    const double r = std::max(1.0e-3, i < radius_.size() ? radius_[i] : 0.0);
     const std::vector<double> radii = {r};
     const TriangleMesh tube = tube_mesh(nodes, radii, 6);
     const auto base = static_cast<unsigned>(p.size() / 3);

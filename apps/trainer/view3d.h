@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "vcsim/render.h"
@@ -17,7 +18,8 @@ class View3D {
   View3D(const View3D&) = delete;
   View3D& operator=(const View3D&) = delete;
 
-  // Draws the frame's anatomy and instruments; the texture then holds the picture.
+  // Draws the frame's anatomy and instruments (each by the frame's model, else the one built
+  // from); the texture then holds the picture.
   void draw(const FrameSnapshot& frame, int selected);
   unsigned texture() const { return color_; }
   int size() const { return size_; }
@@ -26,8 +28,10 @@ class View3D {
   void zoom(double steps);
 
  private:
-  const SimModel& model_;
+  std::shared_ptr<const SimAnatomy> anatomy_;  // kept alive for motion_ (an exchange changes the
+                                               // model, never the anatomy)
   const CardiacMotion* motion_ = nullptr;
+  std::vector<double> radius_;  // (instrument) tube radius drawn, of the model last drawn
   int size_;
   unsigned fbo_ = 0, color_ = 0, depth_ = 0, prog_ = 0;
   unsigned lumen_vao_ = 0, lumen_vbo_ = 0, lumen_nbo_ = 0, lumen_ebo_ = 0;

@@ -179,11 +179,6 @@ void Viewer::run_script(double now) {
 
 void Viewer::do_actions() {
   for (Action a : controls_.take_actions()) do_action(a);
-  // A stent deployment from the menu is a press of half a second.
-  if (deploy_until_us_ > 0.0 && now_us() > deploy_until_us_) {
-    deploy_until_us_ = 0.0;
-    controls_.set_deploy(false, now_us());
-  }
 }
 
 void Viewer::do_action(Action a) {
@@ -336,6 +331,79 @@ void Viewer::save_cine() {
   status_ = saved ? "cine saved in " + (o_.out / "cine").string() : "no new cine run to save";
 }
 
+const SimModel& Viewer::scene_model() const {
+  return view_.frame.model ? *view_.frame.model : physics_.model();
+}
+
+void Viewer::follow_scene() {
+  if (view_.instruments.empty() || view_.frame.model == followed_) return;
+  followed_ = view_.frame.model;
+  controls_.set_instruments(view_.instruments, now_us());
+  // Enter deploys the stent: the nominal pressure of the scene's stent system, else balloon.
+  double deploy = 0.0;
+  for (const InstrumentSpec& spec : scene_model().specs)
+    if (spec.balloon && (deploy == 0.0 || spec.stent)) deploy = spec.balloon->nominal_pressure;
+  controls_.set_deploy_pressure(deploy);
+  physics_.set_operator(controls_.commands());
+}
+
+namespace {
+
+// A name for an added instrument: its catalogue entry's, numbered when the scene has one.
+std::string fresh_name(const std::string& base, const std::vector<std::string>& taken) {
+  std::string name = base;
+  for (int k = 2; std::find(taken.begin(), taken.end(), name) != taken.end(); ++k)
+    name = base + "-" + std::to_string(k);
+  return name;
+}
+
+InstrumentChange change_for(const InstrumentSpec& spec, const std::string& name) {
+  InstrumentChange c;
+  c.kind = InstrumentChange::Kind::kAdd;
+  c.name = name;
+  c.catalogue = spec.name;
+  // As the default scenario declares its instruments: 256 nodes, the tip's segments 2 mm (1.5 mm
+  // on a balloon, whose nodes carry its radii).
+  c.max_nodes = 256;
+  c.tip_segment = spec.balloon ? 1.5e-3 : 2e-3;
+  c.rim = false;
+  c.source = "trainer";
+  c.field = "menu";
+  return c;
+}
+
+}  // namespace
+
+void Viewer::ask_add(const InstrumentSpec& spec, const std::string& inside,
+                     const std::string& over) {
+  InstrumentChange c = change_for(spec, fresh_name(spec.name, view_.instruments));
+  c.inside = inside;
+  c.over = over;
+  physics_.exchange(c);
+  status_ = "asked: " + describe(c);
+}
+
+void Viewer::ask_replace(int selected, const InstrumentSpec& spec) {
+  const SimModel& md = scene_model();
+  const auto su = static_cast<std::size_t>(selected);
+  if (su >= md.scenario.instruments.size()) return;
+  const ScenarioInstrument& old = md.scenario.instruments[su];
+  InstrumentChange out;
+  out.kind = InstrumentChange::Kind::kRemove;
+  out.name = old.name;
+  out.source = "trainer";
+  out.field = "menu";
+  std::vector<std::string> taken = view_.instruments;
+  std::erase(taken, old.name);
+  InstrumentChange in = change_for(spec, fresh_name(spec.name, taken));
+  in.inside = old.inside;
+  in.over = old.over;
+  in.rim = old.rim;
+  physics_.exchange(out);
+  physics_.exchange(in);
+  status_ = "asked: " + describe(out) + ", then " + describe(in);
+}
+
 void Viewer::frame() {
   glfwPollEvents();
   const double now = now_us();
@@ -368,6 +436,7 @@ void Viewer::frame() {
       if (view_.input_seq >= controls_.changes().back().seq) break;
     }
   }
+  follow_scene();
   render_xray();
 
   ImGui_ImplOpenGL3_NewFrame();
@@ -495,12 +564,15 @@ void Viewer::finish() {
     t["cine_frames"] = cine_total_;
     t["rewinds"] = physics_.rewinds();
     t["restarts"] = physics_.restarts();
+    t["exchanges"] = physics_.exchanges();
     t["screenshots"] = shots_taken_;
     if (o_.device) {
       const IgtlStats st = o_.device->stats();
       t["device"] = {{"connections", st.connections},
                      {"disconnections", st.disconnections},
-                     {"messages_accepted", st.messages_accepted}};
+                     {"messages_accepted", st.messages_accepted},
+                     {"exchanges", st.exchanges},
+                     {"exchanges_refused", st.exchanges_refused}};
     }
     j["trainer"] = t;
     std::ofstream(metrics) << j.dump(2) << "\n";

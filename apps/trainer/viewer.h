@@ -94,6 +94,16 @@ class Viewer {
 
  private:
   void frame();
+  // The model of what the window shows: the latest view's (an exchange replaces it), never the
+  // physics thread's own, which it may be replacing.
+  const SimModel& scene_model() const;
+  // The window's controls follow the scene's instruments after an exchange or a restart.
+  void follow_scene();
+  std::shared_ptr<const SimModel> followed_;  // the model follow_scene() last followed
+  // Asks the physics thread to add `spec` (over `over`, inside `inside`) or to replace the
+  // selected instrument by it; the status line says what was asked.
+  void ask_add(const InstrumentSpec& spec, const std::string& inside, const std::string& over);
+  void ask_replace(int selected, const InstrumentSpec& spec);
   void run_script(double now);
   void do_actions();
   void do_action(Action a);
@@ -154,7 +164,6 @@ class Viewer {
   std::vector<double> latency_ms_;
   double session_start_us_ = 0.0;
   double setup_s_ = 0.0;
-  double deploy_until_us_ = 0.0;
 };
 
 }  // namespace vcsim::trainer

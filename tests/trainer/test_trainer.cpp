@@ -23,7 +23,9 @@
 #include "../common/cli_runner.h"
 #include "../common/igtl_client.h"
 #include "controls.h"
+#include "physics.h"
 #include "script.h"
+#include "vcsim/units.h"
 
 namespace vcsim::test {
 namespace {
@@ -98,6 +100,33 @@ TEST(TrainerControls, AHeldKeyPushesTheSelectedInstrumentFasterTheLongerItIsHeld
   c.key(GLFW_KEY_W, GLFW_RELEASE, 0, t0 + 6e6);
   EXPECT_EQ(c.commands().drive[static_cast<std::size_t>(s)].translation, 0.0);
   EXPECT_EQ(c.commands().seq, 2u);  // press and release are events; the ramp is not
+}
+
+// After an exchange the controls follow the scene: an added instrument is selected, a kept one
+// keeps its selection by name, every hand lets go (nothing keeps moving into the new scene), and
+// Enter inflates to the stent system's nominal pressure.
+TEST(TrainerControls, FollowTheSceneAcrossAnExchange) {
+  const Scenario sc = default_scenario();
+  Controls c(names_of(sc), sc);
+  const double t0 = 1e6;
+  c.key(GLFW_KEY_W, GLFW_PRESS, 0, t0);  // pushing j_wire
+  std::vector<std::string> next = names_of(sc);
+  next.push_back("balloon-sc-2.5x15");
+  c.set_instruments(next, t0 + 1e5);
+  ASSERT_EQ(c.num_instruments(), static_cast<int>(next.size()));
+  EXPECT_EQ(c.name(c.selected()), "balloon-sc-2.5x15") << "the added instrument";
+  ASSERT_EQ(c.commands().drive.size(), next.size());
+  c.select(1, t0 + 2e5);
+  const std::string kept = c.name(1);
+  next.pop_back();
+  next.erase(next.begin());  // and the first removed
+  c.set_instruments(next, t0 + 3e5);
+  EXPECT_EQ(c.name(c.selected()), kept) << "kept by its name";
+  c.key(GLFW_KEY_W, GLFW_RELEASE, 0, t0 + 4e5);
+  for (const DriveCommand& d : c.commands().drive) EXPECT_EQ(d.translation, 0.0);
+  c.set_deploy_pressure(12.0 * kAtm);
+  c.key(GLFW_KEY_ENTER, GLFW_PRESS, 0, t0 + 5e5);
+  EXPECT_DOUBLE_EQ(c.commands().balloon_pressure, 12.0 * kAtm);
 }
 
 TEST(TrainerControls, PedalsSyringeSelectionAndTheCArm) {
@@ -431,6 +460,101 @@ TEST(TrainerApp, ADeviceConnectsDropsAndReconnectsBesideTheKeyboard) {
   EXPECT_GT(m["instruments"][0]["inserted_mm"].get<double>(), 1.0);  // the device's catheter
   EXPECT_GT(m["instruments"][1]["inserted_mm"].get<double>(), 1.0);  // the keyboard's wire
   EXPECT_EQ(replay_hash(d), m["state_hash"].get<std::string>());
+}
+
+// A device exchanges instruments during a session (docs/devices.md, "Instrument exchange"): a
+// balloon catheter added over the coronary wire inside the guide, then removed; an unknown
+// catalogue entry is refused and answered. The session's recording holds both exchanges and
+// replays to the same state.
+TEST(TrainerApp, ADeviceExchangesInstrumentsAndTheSessionReplays) {
+  const Scratch scratch_dir("exchange");
+  const fs::path& d = scratch_dir.d;
+  std::ofstream(d / "s.json") << R"({"events": [
+    {"t_s": 0.2, "key": "W", "action": "press"},
+    {"t_s": 0.8, "key": "W", "action": "release"},
+    {"t_s": 60, "close": true}]})";
+  CliProcess p({"trainer", "--script", (d / "s.json").string(), "--out", d.string(), "--device",
+                "igtl", "--port", "0"},
+               d / "out.txt", d / "err.txt");
+  ASSERT_TRUE(p.started());
+  const int port = wait_for_port(p, d / "err.txt");
+  ASSERT_GT(port, 0) << slurp(d / "err.txt");
+  const auto ready_by = std::chrono::steady_clock::now() + 120s;
+  while (slurp(d / "err.txt").find(" ready in ") == std::string::npos && !p.exited() &&
+         std::chrono::steady_clock::now() < ready_by)
+    std::this_thread::sleep_for(20ms);
+  {
+    IgtlClient c;
+    ASSERT_TRUE(c.connect(port, 10000ms));
+    std::string reply;
+    ASSERT_TRUE(c.send_string("exchange", "add predil balloon-sc-2.5x15 inside=catheter "
+                                          "over=coronary_wire"));
+    ASSERT_TRUE(c.read_string("exchange", reply, 20000ms));
+    EXPECT_EQ(reply.rfind("done: add predil", 0), 0u) << reply;
+    ASSERT_TRUE(c.send_sensor("vel_predil", {0.0, 0.0}));  // the new instrument, by name
+    std::this_thread::sleep_for(300ms);
+    ASSERT_TRUE(c.send_string("exchange", "add x no-such-balloon"));
+    ASSERT_TRUE(c.read_string("exchange", reply, 20000ms));
+    EXPECT_EQ(reply.rfind("refused: ", 0), 0u) << reply;
+    EXPECT_NE(reply.find("no-such-balloon"), std::string::npos) << reply;
+    ASSERT_TRUE(c.send_string("exchange", "remove predil"));
+    ASSERT_TRUE(c.read_string("exchange", reply, 20000ms));
+    EXPECT_EQ(reply.rfind("done: remove predil", 0), 0u) << reply;
+    c.close();
+  }
+  p.signal(SIGTERM);
+  ASSERT_TRUE(p.wait(120s));
+  ASSERT_EQ(p.status(), 0) << slurp(d / "err.txt");
+  const nlohmann::json m = read_json(d / "metrics.json");
+  EXPECT_EQ(m["trainer"]["exchanges"].get<int>(), 2);
+  EXPECT_EQ(m["trainer"]["device"]["exchanges_refused"].get<int>(), 1);
+  const nlohmann::json rec = read_json(d / "recording.json");
+  ASSERT_TRUE(rec.contains("exchanges")) << "the recording carries the exchanges";
+  EXPECT_EQ(rec["exchanges"].size(), 2u);
+  EXPECT_EQ(replay_hash(d), m["state_hash"].get<std::string>());
+}
+
+// The window's exchange path (the Instruments menu calls PhysicsThread::exchange): a request is
+// made between two steps, shows in the view, is recorded; one the engine refuses leaves the scene
+// as it was and says why; the recording replays to the session's state.
+TEST(TrainerPhysics, AnExchangeFromTheWindowIsMadeRecordedAndReplayed) {
+  const Scratch scratch_dir("physics_exchange");
+  Scenario sc = default_scenario();
+  sc.autopilot.clear();
+  trainer::PhysicsThread ph(sc, nullptr);
+  InstrumentChange add;
+  add.kind = InstrumentChange::Kind::kAdd;
+  add.name = "predil";
+  add.catalogue = "balloon-sc-2.5x15";
+  add.inside = "catheter";
+  add.over = "coronary_wire";
+  add.rim = false;
+  InstrumentChange bad = add;
+  bad.name = "j_wire";  // a name in use
+  ph.start();
+  ph.exchange(add);
+  ph.exchange(bad);
+  trainer::ViewState v;
+  const auto until = std::chrono::steady_clock::now() + 60s;
+  while (std::chrono::steady_clock::now() < until &&
+         (v.instruments.size() != sc.instruments.size() + 1 || v.time < 0.2)) {
+    ph.latest(v);
+    std::this_thread::sleep_for(5ms);
+  }
+  ph.stop();
+  ASSERT_EQ(v.instruments.size(), sc.instruments.size() + 1);
+  EXPECT_EQ(v.instruments.back(), "predil");
+  EXPECT_EQ(ph.exchanges(), 1);
+  EXPECT_NE(v.message.find("refused"), std::string::npos) << v.message;
+  EXPECT_EQ(ph.simulator().num_instruments(), static_cast<int>(sc.instruments.size()) + 1);
+  CommandRecording& rec = ph.recording();
+  ASSERT_EQ(rec.exchanges().size(), 1u);
+  rec.state_hash = ph.simulator().state().hash();
+  rec.save(scratch_dir.d / "recording.json");
+  char hex[19];
+  std::snprintf(hex, sizeof hex, "%016llx",
+                static_cast<unsigned long long>(ph.simulator().state().hash()));
+  EXPECT_EQ(replay_hash(scratch_dir.d), std::string(hex));
 }
 
 TEST(TrainerApp, BadInputIsAClearErrorAndNothingIsLost) {
