@@ -33,6 +33,7 @@ struct RunOptions {
   std::string out;
   bool no_frames = false;
   bool quiet = false;
+  bool profile = false;   // print the step's stages (mean, p50, p99)
   bool trace = false;
   double time_limit_s = 0.0;  // 0: the scenario's
   std::string device;         // "" (the scenario's input) or "igtl"
@@ -238,6 +239,9 @@ int cmd_run(const RunOptions& o) {
   write_run_metrics(metrics, sim, report);
   if (commands) commands->finish(sim).save(o.record);
   print_run_summary(std::cout, sim, report, frames_dir, metrics);
+  if (o.profile)
+    std::cout << "  the step by stage over " << sim.profile().steps << " steps:\n"
+              << sim.profile().table();
   if (replay && replay->recording().state_hash != 0) {
     const bool same = replay->recording().state_hash == sim.state().hash();
     std::cout << "  replay:  " << replay->recording().steps() << " steps, state hash "
@@ -254,6 +258,9 @@ void install(CLI::App& app, int& status) {
   cmd->add_option("--out", o->out, "Output folder (default: out/<scenario name>)");
   cmd->add_flag("--no-frames", o->no_frames, "Physics only: no fluoroscopy frames");
   cmd->add_flag("--quiet", o->quiet, "No progress output");
+  cmd->add_flag("--profile", o->profile,
+                "Print the step's stages (mean, median, 99th percentile per step; also in "
+                "metrics.json, \"profile\")");
   cmd->add_flag("--trace", o->trace, "Print what the autopilot sees and does");
   cmd->add_option("--time-limit", o->time_limit_s, "Simulated seconds before giving up");
   cmd->add_option("--device", o->device,

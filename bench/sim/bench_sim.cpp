@@ -15,11 +15,20 @@
 // wire in the guide and removes it again, two exchanges per iteration (each a model rebuild of
 // the instruments around the shared anatomy, the state carried over, the wall taken over);
 // BM_RebuildModel times the model rebuild alone.
+//
+// The real workload (issue 30): BM_ProcedureStep/<moment> restores the default run at a moment of
+// its procedure and steps the next 0.1 s with the commands its autopilot gave there (recorded
+// once per program, run at the scenario's dt with its sub-steps): 0 the arch (3 s: the J wire
+// and the guide on their way up), 1 the engagement (11.5 s: the guide seated in the left main),
+// 2 the wire in the LAD (35 s: crossing the lesion), 3 the stent inflated in the lesion (62 s).
+// Counters: step_us per step, and the stages' means (us per step) from the Simulator's profile.
 #include <benchmark/benchmark.h>
 
+#include <array>
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "../../tests/sim/balloon_scene.h"
 #include "vcsim/sim.h"
@@ -172,6 +181,62 @@ void BM_TubeStep(benchmark::State& state) {
 }
 BENCHMARK(BM_TubeStep)->Arg(0)->Arg(1)->Arg(2)->ArgName("deflated0_inflated1_stent2")->Unit(
     benchmark::kMicrosecond);
+
+// The default run's moments and the autopilot's commands right after each, recorded once.
+struct Moments {
+  static constexpr double kAt[] = {3.0, 11.5, 35.0, 62.0};
+  static constexpr int kSteps = 200;  // 0.1 s at 0.5 ms
+  std::unique_ptr<Simulator> sim;
+  std::vector<SimState> start;
+  std::vector<std::vector<StepCommands>> cmds;
+  Moments() {
+    sim = std::make_unique<Simulator>(load_scenario(default_scenarios_dir() / "default.json"));
+    Autopilot pilot(*sim);
+    StepCommands c;
+    for (double at : kAt) {
+      while (sim->time() < at - 1e-9) {
+        pilot.command(*sim, c);
+        sim->step(c);
+      }
+      start.push_back(sim->snapshot());
+      cmds.emplace_back();
+      for (int k = 0; k < kSteps; ++k) {
+        pilot.command(*sim, c);
+        cmds.back().push_back(c);
+        sim->step(c);
+      }
+    }
+  }
+};
+
+void BM_ProcedureStep(benchmark::State& state) {
+  static Moments m;
+  const auto i = static_cast<std::size_t>(state.range(0));
+  Simulator& sim = *m.sim;
+  sim.restore(m.start[i]);
+  const SimProfile before = sim.profile();
+  for (auto _ : state) {
+    state.PauseTiming();
+    sim.restore(m.start[i]);
+    state.ResumeTiming();
+    for (const StepCommands& c : m.cmds[i]) sim.step(c);
+  }
+  const SimProfile& after = sim.profile();
+  const auto n = static_cast<double>(after.steps - before.steps);
+  state.counters["step_us"] = 1e6 * (after.wall_time - before.wall_time) / n;
+  const std::array<double, kNumSimStages> a = stage_times(after.sum), b = stage_times(before.sum);
+  for (int k = 0; k < kNumSimStages; ++k) {
+    const auto u = static_cast<std::size_t>(k);
+    state.counters[to_string(static_cast<SimStage>(k))] = (a[u] - b[u]) / n;
+  }
+}
+BENCHMARK(BM_ProcedureStep)
+    ->Arg(0)
+    ->Arg(1)
+    ->Arg(2)
+    ->Arg(3)
+    ->ArgName("arch0_engaged1_lad2_stent3")
+    ->Unit(benchmark::kMillisecond);
 
 }  // namespace
 

@@ -13,6 +13,7 @@
 // Files carry units in key names (mm, deg, s, ml/s); structs hold SI.
 #pragma once
 
+#include <array>
 #include <atomic>
 #include <cstdint>
 #include <filesystem>
@@ -376,6 +377,19 @@ struct SimStepProfile {
   double total = 0.0;
 };
 
+// The sim step's stages as `vcsim run --profile` and metrics.json ("profile") name them, each
+// timed on every step (docs/architecture.md, "The sim step"). Disjoint but for `total`: the
+// instruments' stages are summed over the fine steps; `substeps` is the solver's own work around
+// them (backups, the split, a re-split or rollback: the fine steps run again are in the others).
+enum class SimStage {
+  kProcedure, kWall, kDrive, kForces, kVelocities, kCollision, kCoupling, kDistance, kContacts,
+  kPositions, kFeedback, kSubsteps, kContrast, kMetrics, kLandmarks, kTotal, kCount
+};
+inline constexpr int kNumSimStages = static_cast<int>(SimStage::kCount);
+const char* to_string(SimStage s);
+// A step's profile by stage (us).
+std::array<double, kNumSimStages> stage_times(const SimStepProfile& p);
+
 // One step of model.dt(): the instruments (solver_step, in the beating wall), contrast, metrics
 // and landmarks. `commands` must hold one drive command per instrument (asserted). No heap
 // allocation once warm.
@@ -399,6 +413,9 @@ struct SimProfile {
   double wall_time = 0.0;  // s spent in step()
   std::int64_t steps = 0;
   SimStepProfile sum;  // stage times summed over the steps (us)
+  std::array<DurationHistogram, kNumSimStages> stages;  // (SimStage) per-step times
+  // Each stage's mean, median and 99th percentile per step (us): `vcsim run --profile`.
+  std::string table() const;
 };
 
 class Simulator {

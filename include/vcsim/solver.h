@@ -249,8 +249,14 @@ SolverState make_solver_state(const SolverModel& model, std::vector<InstrumentSt
 // Step
 
 struct StepProfile {
+  // microseconds. collision: the wall's contacts found (and the sheath's, the holds');
+  // constraints: the block iterations (distance, contacts with the wall, and the coupling's
+  // solve); coupling: the coaxial pairs' detection, solve and projection; integrate_positions:
+  // positions and the contacts' bias removed; wall: moving the beating wall to each fine step's
+  // time and refitting its tree; feedback: the hands' forces and the rods' end of step.
   double drive = 0, forces = 0, integrate_velocities = 0, collision = 0, constraints = 0,
-         distance = 0, contacts = 0, integrate_positions = 0, total = 0;  // microseconds
+         distance = 0, contacts = 0, integrate_positions = 0, total = 0;
+  double wall = 0, coupling = 0, feedback = 0;
   int num_contacts = 0;
   int num_queries = 0;
 };

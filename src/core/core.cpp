@@ -79,4 +79,35 @@ void StateHasher::add_bytes(const void* data, std::size_t n) {
   }
 }
 
+// --- DurationHistogram ---------------------------------------------------------------------------
+
+namespace {
+constexpr double kHistogramLow = 0.05;  // us, the lower edge of bin 0
+const double kHistogramStep = std::log(1.05);
+}  // namespace
+
+void DurationHistogram::add(double us) {
+  if (!(us >= 0.0)) us = 0.0;  // NaN as 0
+  int b = us > kHistogramLow ? static_cast<int>(std::log(us / kHistogramLow) / kHistogramStep) : 0;
+  b = std::clamp(b, 0, kBins - 1);
+  ++bins_[static_cast<std::size_t>(b)];
+  ++count_;
+  sum_ += us;
+  max_ = std::max(max_, us);
+}
+
+double DurationHistogram::quantile(double q) const {
+  if (count_ == 0) return 0.0;
+  const auto want = static_cast<std::int64_t>(std::ceil(std::clamp(q, 0.0, 1.0) * static_cast<double>(count_)));
+  std::int64_t seen = 0;
+  for (int b = 0; b < kBins; ++b) {
+    seen += bins_[static_cast<std::size_t>(b)];
+    if (seen >= std::max<std::int64_t>(want, 1)) {
+      if (b == 0) return std::min(max_, kHistogramLow);
+      return std::min(max_, kHistogramLow * std::exp((b + 0.5) * kHistogramStep));
+    }
+  }
+  return max_;
+}
+
 }  // namespace vcsim

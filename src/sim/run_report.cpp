@@ -90,6 +90,16 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
   j["render_time_s"] = r.render_time;
   j["real_time_factor"] = real_time_factor(sim, r);
   j["physics_real_time_factor"] = physics_real_time_factor(sim);
+  {
+    // The step's stages (us per step): docs/architecture.md, "The sim step".
+    nlohmann::json prof;
+    for (int k = 0; k < kNumSimStages; ++k) {
+      const DurationHistogram& h = sim.profile().stages[static_cast<std::size_t>(k)];
+      prof[to_string(static_cast<SimStage>(k))] = {
+          {"mean_us", h.mean()}, {"p50_us", h.quantile(0.5)}, {"p99_us", h.quantile(0.99)}};
+    }
+    j["profile"] = prof;
+  }
   j["steps"] = m.steps;
   j["rollbacks"] = m.rollbacks;
   j["resplit_steps"] = m.resplit_steps;

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <numbers>
 
@@ -367,6 +368,68 @@ void sim_step(const SimModel& md, SimState& st, SimWorkspace& ws, const StepComm
   }
 }
 
+// --- profile -------------------------------------------------------------------------------------
+
+const char* to_string(SimStage s) {
+  switch (s) {
+    case SimStage::kProcedure: return "procedure";
+    case SimStage::kWall: return "wall";
+    case SimStage::kDrive: return "drive";
+    case SimStage::kForces: return "forces";
+    case SimStage::kVelocities: return "velocities";
+    case SimStage::kCollision: return "collision";
+    case SimStage::kCoupling: return "coupling";
+    case SimStage::kDistance: return "distance";
+    case SimStage::kContacts: return "contacts";
+    case SimStage::kPositions: return "positions";
+    case SimStage::kFeedback: return "feedback";
+    case SimStage::kSubsteps: return "substeps";
+    case SimStage::kContrast: return "contrast";
+    case SimStage::kMetrics: return "metrics";
+    case SimStage::kLandmarks: return "landmarks";
+    case SimStage::kTotal: return "total";
+    case SimStage::kCount: break;
+  }
+  return "?";
+}
+
+std::array<double, kNumSimStages> stage_times(const SimStepProfile& p) {
+  const StepProfile& i = p.instruments;
+  std::array<double, kNumSimStages> t{};
+  auto at = [&](SimStage s) -> double& { return t[static_cast<std::size_t>(s)]; };
+  at(SimStage::kProcedure) = p.procedure;
+  at(SimStage::kWall) = i.wall;
+  at(SimStage::kDrive) = i.drive;
+  at(SimStage::kForces) = i.forces;
+  at(SimStage::kVelocities) = i.integrate_velocities;
+  at(SimStage::kCollision) = i.collision;
+  at(SimStage::kCoupling) = i.coupling;
+  at(SimStage::kDistance) = i.distance;
+  at(SimStage::kContacts) = i.contacts;
+  at(SimStage::kPositions) = i.integrate_positions;
+  at(SimStage::kFeedback) = i.feedback;
+  at(SimStage::kSubsteps) = std::max(0.0, p.solver - i.total - i.wall);
+  at(SimStage::kContrast) = p.contrast;
+  at(SimStage::kMetrics) = p.metrics;
+  at(SimStage::kLandmarks) = p.landmarks;
+  at(SimStage::kTotal) = p.total;
+  return t;
+}
+
+std::string SimProfile::table() const {
+  std::string out = "| stage | mean (us) | p50 (us) | p99 (us) | share |\n|---|---|---|---|---|\n";
+  const double total = stages[static_cast<std::size_t>(SimStage::kTotal)].mean();
+  char line[160];
+  for (int k = 0; k < kNumSimStages; ++k) {
+    const DurationHistogram& h = stages[static_cast<std::size_t>(k)];
+    std::snprintf(line, sizeof line, "| %s | %.1f | %.1f | %.1f | %.0f %% |\n",
+                  to_string(static_cast<SimStage>(k)), h.mean(), h.quantile(0.5), h.quantile(0.99),
+                  total > 0.0 ? 100.0 * h.mean() / total : 0.0);
+    out += line;
+  }
+  return out;
+}
+
 // --- Simulator -----------------------------------------------------------------------------------
 
 Simulator::Simulator(Scenario scenario) : Simulator(build_sim_model(std::move(scenario))) {}
@@ -404,6 +467,8 @@ void Simulator::step(const StepCommands& cmds) {
   sum.metrics += p.metrics;
   sum.landmarks += p.landmarks;
   sum.total += p.total;
+  const std::array<double, kNumSimStages> st = stage_times(p);
+  for (int k = 0; k < kNumSimStages; ++k) profile_.stages[static_cast<std::size_t>(k)].add(st[static_cast<std::size_t>(k)]);
   StepProfile& a = sum.instruments;
   const StepProfile& b = p.instruments;
   a.drive += b.drive;
@@ -415,6 +480,9 @@ void Simulator::step(const StepCommands& cmds) {
   a.contacts += b.contacts;
   a.integrate_positions += b.integrate_positions;
   a.total += b.total;
+  a.wall += b.wall;
+  a.coupling += b.coupling;
+  a.feedback += b.feedback;
   a.num_contacts += b.num_contacts;
   a.num_queries += b.num_queries;
 }

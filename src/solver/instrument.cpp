@@ -641,6 +641,7 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
   // innermost outer first; an inflated balloon's nodes are held to the vessel's axis instead
   for (const Inst& in : insts)
     if (!in.parked()) std::fill(in.w->sheathed.begin(), in.w->sheathed.end(), 0);
+  double t_coup = 0.0;  // the coaxial pairs' detection, solve and projection
   for (std::size_t k = 0; k < couplings.size(); ++k) {
     const Pair& c = couplings[k];
     const Inst& in = insts[c.cm->inner];
@@ -651,6 +652,8 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
     }
     detect_coupling(c, static_cast<unsigned char>(k + 1), in, out, set);
   }
+  const double t_detect = tick() - t3;
+  t_coup += t_detect;
   for (const Inst& in : insts) {
     if (in.parked()) continue;
     if (collide) {
@@ -680,7 +683,8 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
     for (const Pair& c : couplings)
       if (!c.s->contacts.empty()) solve_coupling(c, insts[c.cm->inner], insts[c.cm->outer], set);
     t_dist += region(0);
-    t_cont += region(1) + (tick() - b);
+    t_cont += region(1);
+    t_coup += tick() - b;
   }
   const double t5 = tick();
   // 6. positions, then the coupled wires exactly into their catheters' lumens
@@ -688,6 +692,7 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
     rod_integrate_positions(insts[k].model(), rs, insts[k].rod(), insts[k].ws());
     remove_contact_bias(insts[k], set);
   });
+  const double t5b = tick();
   for (std::size_t k = 0; k < couplings.size(); ++k) {
     const Pair& c = couplings[k];
     const Inst& in = insts[c.cm->inner];
@@ -697,21 +702,26 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
       remove_coupling_bias(c, in, out, rs.dt);
     }
   }
+  const double t5c = tick();
+  t_coup += t5c - t5b;
   for (const Inst& in : insts) {
     if (in.parked()) continue;
     if (in.driven()) drive_end(in);
   }
   // 7. what the hands feel, inner instruments first; then the rods' own end of step
+  const double t5d = tick();
   hand_feedback(insts, couplings, set);
   for (const Inst& in : insts)
     if (!in.parked()) rod_end_step(in.model(), rs, in.rod(), in.ws());
   if (prof) {
     const double t6 = tick();
-    p.collision = t4 - t3;
+    p.collision = t4 - t3 - t_detect;
     p.constraints = t5 - t4;
     p.distance = t_dist;
     p.contacts = t_cont;
-    p.integrate_positions = t6 - t5;
+    p.integrate_positions = (t5b - t5) + (t5d - t5c);
+    p.coupling = t_coup;
+    p.feedback = t6 - t5d;
     p.total = t6 - t0;
     p.num_contacts = 0;
     for (const Inst& in : insts) p.num_contacts += static_cast<int>(in.w->contacts.size());

@@ -32,6 +32,9 @@ void add(StepProfile& to, const StepProfile& p) {
   to.contacts += p.contacts;
   to.integrate_positions += p.integrate_positions;
   to.total += p.total;
+  to.wall += p.wall;
+  to.coupling += p.coupling;
+  to.feedback += p.feedback;
   to.num_contacts = p.num_contacts;  // the last fine step's
   to.num_queries += p.num_queries;
 }
@@ -152,10 +155,15 @@ void advance(const SolverModel& md, SolverState& st, SolverScratch& s, VesselWal
         c.rotation = start.roll + (cmds[i].rotation - start.roll) * k / n;
       }
     }
+    const double w0 = prof ? now_us() : 0.0;
     if (wall) wall->set_time(st.time + dt * k / n);
     StepProfile p;
+    const double w1 = prof ? now_us() : 0.0;
     internal::fine_step(s.bound, s.pairs, wall, set, s.sub_drive, prof ? &p : nullptr);
-    if (prof) add(*prof, p);
+    if (prof) {
+      p.wall = w1 - w0;
+      add(*prof, p);
+    }
     for (std::size_t i = 0; i < ni; ++i) {
       s.fine_force[i] += st.instruments[i].drive.axial_force_raw / n;
       s.fine_torque[i] += st.instruments[i].drive.torque_raw / n;

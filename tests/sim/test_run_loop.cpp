@@ -111,6 +111,35 @@ TEST(SimulatorRunLoop, PollsStepsAndPublishesUntilItsEnd) {
   EXPECT_EQ(st.steps, 10);
 }
 
+// Every step is profiled by stage (`vcsim run --profile`, metrics.json "profile"): each stage
+// counted once per step, none negative, and the disjoint stages add up to no more than the step's
+// total; the wire's stages (forces, collision, the distance solve) take time, the procedure's
+// none (no balloon in the scene) beyond the clock's own reading.
+TEST(SimulatorRunLoop, EveryStepIsProfiledByStage) {
+  Simulator sim(wire_scenario());
+  CountingInput input;
+  RunLoopSettings s;
+  s.end_time = 0.1;
+  run_loop(sim, input, s);
+  const SimProfile& p = sim.profile();
+  double parts = 0.0;
+  for (int k = 0; k < kNumSimStages; ++k) {
+    const DurationHistogram& h = p.stages[static_cast<std::size_t>(k)];
+    EXPECT_EQ(h.count(), 200) << to_string(static_cast<SimStage>(k));
+    EXPECT_GE(h.mean(), 0.0) << to_string(static_cast<SimStage>(k));
+    EXPECT_LE(h.quantile(0.5), h.quantile(0.99) * (1.0 + 1e-12));
+    if (static_cast<SimStage>(k) != SimStage::kTotal) parts += h.mean();
+  }
+  const double total = p.stages[static_cast<std::size_t>(SimStage::kTotal)].mean();
+  EXPECT_GT(total, 0.0);
+  EXPECT_LE(parts, total * 1.0001);
+  for (SimStage st : {SimStage::kForces, SimStage::kCollision, SimStage::kDistance})
+    EXPECT_GT(p.stages[static_cast<std::size_t>(st)].mean(), 0.0) << to_string(st);
+  const std::string table = p.table();
+  EXPECT_NE(table.find("| collision |"), std::string::npos) << table;
+  EXPECT_NE(table.find("| total |"), std::string::npos) << table;
+}
+
 TEST(SimulatorRunLoop, RealTimeRunTakesAtLeastItsSimulatedTime) {
   Simulator sim(wire_scenario());
   CountingInput input;
