@@ -35,7 +35,7 @@ struct AssessmentSettings {
   // of a catheter, low-passed (first order, force_time_constant: a load held, not a one-step
   // impulse), above its threshold; it ends once the force stays below it for event_gap.
   double coronary_wire_force = 0.15;   // N
-  double catheter_force = 0.5;         // N
+  double catheter_force = 1.0;         // N
   double force_time_constant = 0.01;   // s
   double event_gap = 0.05;             // s
   // Dose model: reference air kerma at the interventional reference point (IEC 60601-2-43:
@@ -111,8 +111,10 @@ class Assessment : public RunObserver {
  public:
   explicit Assessment(const Simulator& sim, AssessmentSettings settings = {});
   ~Assessment() override;
-  Assessment(const Assessment&) = delete;
-  Assessment& operator=(const Assessment&) = delete;
+  // A copy is a snapshot of what was measured so far (the trainer keeps one with each snapshot of
+  // the state, so that a rewind takes the assessment back with it).
+  Assessment(const Assessment& other);
+  Assessment& operator=(const Assessment& other);
 
   // The autopilot's phases become the timeline's phases (optional).
   void follow(const Autopilot* pilot) { pilot_ = pilot; }

@@ -230,6 +230,17 @@ Assessment::Assessment(const Simulator& sim, AssessmentSettings settings)
 
 Assessment::~Assessment() = default;
 
+Assessment::Assessment(const Assessment& other)
+    : RunObserver(other), p_(std::make_unique<Impl>(*other.p_)), pilot_(other.pilot_) {}
+
+Assessment& Assessment::operator=(const Assessment& other) {
+  if (this != &other) {
+    *p_ = *other.p_;
+    pilot_ = other.pilot_;
+  }
+  return *this;
+}
+
 bool Assessment::before_step(const Simulator& sim, const StepCommands& c) {
   p_->buttons = c.buttons;
   p_->flow = c.syringe_flow;
@@ -632,18 +643,18 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
   if (!pedal)  // the beam was on throughout
     iv.push_back({{"row", "fluoroscopy"}, {"start_s", 0.0}, {"end_s", end}});
   a["intervals"] = iv;
-  Json marks = Json::array();
+  // Events in time order, the landmarks reached among them.
   std::vector<Mark> sorted = p.marks;
-  std::stable_sort(sorted.begin(), sorted.end(),
-                   [](const Mark& x, const Mark& y) { return x.time < y.time; });
-  for (const Mark& m : sorted)
-    marks.push_back({{"time_s", m.time}, {"what", m.what}, {"instrument", m.instrument}});
   const Json landmarks = j.contains("landmarks") ? j["landmarks"] : Json::array();
   for (const Json& l : landmarks)
-    if (l.value("reached", false))
-      marks.push_back({{"time_s", l["time_s"]},
-                       {"what", "landmark: " + l.value("name", std::string())},
-                       {"instrument", l.value("instrument", std::string())}});
+    if (l.value("reached", false) && l["time_s"].is_number())
+      sorted.push_back({l["time_s"].get<double>(), "landmark: " + l.value("name", std::string()),
+                        l.value("instrument", std::string())});
+  std::stable_sort(sorted.begin(), sorted.end(),
+                   [](const Mark& x, const Mark& y) { return x.time < y.time; });
+  Json marks = Json::array();
+  for (const Mark& m : sorted)
+    marks.push_back({{"time_s", m.time}, {"what", m.what}, {"instrument", m.instrument}});
   a["events"] = marks;
   // The fluoroscopy view the frames were filmed in (the table pan of each frame: frames.csv).
   a["view"] = {{"primary_deg", pose.primary_deg},

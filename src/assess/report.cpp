@@ -249,6 +249,15 @@ std::string range_text(const Reference& r) {
   return "";
 }
 
+// "ok" inside the reference range, "out" outside, "none" without one (or without a value).
+std::string status_of(const Json& v, const Reference& r) {
+  if (!v.is_number() || (!std::isfinite(r.low) && !std::isfinite(r.high))) return "none";
+  const double x = v.get<double>();
+  const bool ok = (!std::isfinite(r.low) || x >= r.low - 1e-12) &&
+                  (!std::isfinite(r.high) || x <= r.high + 1e-12);
+  return ok ? "ok" : "out";
+}
+
 // ---------------------------------------------------------------------------------------------
 // Pictures
 
@@ -539,14 +548,7 @@ fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const Re
     const Json& v = sum[r.key];
     mu::object row{{"label", r.label}, {"unit", r.unit}, {"value", value_text(v, r.decimals)},
                    {"range", range_text(r)}, {"source", r.source}};
-    std::string status = "none";
-    if (v.is_number() && (std::isfinite(r.low) || std::isfinite(r.high))) {
-      const double x = v.get<double>();
-      const bool ok = (!std::isfinite(r.low) || x >= r.low - 1e-12) &&
-                      (!std::isfinite(r.high) || x <= r.high + 1e-12);
-      status = ok ? "ok" : "out";
-    }
-    row["status"] = status;
+    row["status"] = status_of(v, r);
     rows.push_back(row);
   }
   d.set("metrics", rows);
@@ -635,7 +637,7 @@ fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const Re
   d.set("legend", legend);
   // Plots
   std::vector<std::pair<std::string, std::string>> force, wall, depth;
-  double cath = num(a["settings"], "catheter_force_n", 0.5);
+  double cath = num(a["settings"], "catheter_force_n", 1.0);
   double wire = num(a["settings"], "coronary_wire_force_n", 0.15);
   for (const Json& i : a["instruments"]) {
     const std::string nm = str(i, "name");
@@ -720,8 +722,9 @@ void write_compare_report(std::span<const fs::path> run_dirs, const fs::path& ou
   mu::data d;
   mu::list header;
   for (std::size_t k = 0; k < runs.size(); ++k)
-    header.push_back(mu::object{{"n", std::to_string(k + 1)},
-                                {"dir", runs[k].dir.filename().string()}});
+    header.push_back(mu::object{
+        {"n", std::to_string(k + 1)},
+        {"dir", (runs[k].dir.parent_path().filename() / runs[k].dir.filename()).string()}});
   d.set("runs", header);
   mu::list rows;
   Json plots = Json::array();
@@ -732,7 +735,7 @@ void write_compare_report(std::span<const fs::path> run_dirs, const fs::path& ou
     for (std::size_t k = 0; k < runs.size(); ++k) {
       const Json& s = (*runs[k].a)["summary"];
       const Json v = s.contains(r.key) ? s[r.key] : Json(nullptr);
-      cells.push_back(mu::object{{"value", value_text(v, r.decimals)}});
+      cells.push_back(mu::object{{"value", value_text(v, r.decimals)}, {"status", status_of(v, r)}});
       data.push_back({static_cast<double>(k + 1), v.is_number() ? v : Json(nullptr)});
       any = any || v.is_number();
     }
