@@ -14,6 +14,7 @@
 #include <thread>
 #include <vector>
 
+#include "vcsim/assess.h"
 #include "vcsim/haptics.h"
 #include "vcsim/render.h"
 #include "vcsim/sim.h"
@@ -91,6 +92,9 @@ class PhysicsThread {
   RunLoopStats loop_stats() const { return stats_; }
   double fluoro_time() const { return fluoro_time_; }
   int rewinds() const { return rewinds_; }
+  // What the session measured (docs/assessment.md), of the steps that led to the final state: a
+  // rewind takes it back with the state.
+  const Assessment& assessment() const { return assess_; }
   int restarts() const { return restarts_; }
 
   // Snapshots for a rewind: one every kSnapshotEvery s of simulated time, the last kSnapshots.
@@ -110,6 +114,7 @@ class PhysicsThread {
   struct Saved {
     SimState state;
     double fluoro_time = 0.0;
+    Assessment assessment;
   };
   std::deque<Saved> ring_;
   double next_snapshot_ = 0.0;
@@ -118,6 +123,7 @@ class PhysicsThread {
   InstrumentChange change_;  // one a device asks for (refused)
   std::vector<HandFeedback> feedback_;
   double fluoro_time_ = 0.0;
+  Assessment assess_, initial_assess_;
   int rewinds_ = 0, restarts_ = 0;
   std::vector<float> lags_;
   RunLoopStats stats_;
