@@ -178,13 +178,27 @@ Run load_run(const fs::path& dir) {
   if (!m.contains("assessment") || !m["assessment"].is_object())
     throw InputError(src, "assessment", "expected the assessment section (written by vcsim run)");
   r.a = &m["assessment"];
-  for (const char* key : {"summary", "beam", "dose", "contrast", "instruments", "events",
-                          "intervals", "phases", "view", "lesions", "treatment"})
-    if (!r.a->contains(key))
-      throw InputError(src, cat("assessment.", key), "expected it (written by vcsim run)");
-  if (!(*r.a)["summary"].is_object() || !(*r.a)["instruments"].is_array() ||
-      !(*r.a)["events"].is_array() || !(*r.a)["intervals"].is_array())
-    throw InputError(src, "assessment", "expected summary an object and the lists arrays");
+  const Json& a = *r.a;
+  // What the report reads, each of the type it reads it as; then only num() and str() look
+  // inside, and they take a missing or mistyped field as absent.
+  for (const char* key : {"summary", "settings", "beam", "dose", "contrast", "view", "treatment"})
+    if (!a.contains(key) || !a[key].is_object())
+      throw InputError(src, cat("assessment.", key), "expected an object (written by vcsim run)");
+  for (const char* key : {"instruments", "events", "intervals", "phases", "lesions"}) {
+    if (!a.contains(key) || !a[key].is_array())
+      throw InputError(src, cat("assessment.", key), "expected an array (written by vcsim run)");
+    for (std::size_t i = 0; i < a[key].size(); ++i)
+      if (!a[key][i].is_object())
+        throw InputError(src, internal::index_path(cat("assessment.", key), i),
+                         "expected an object");
+  }
+  const Json& c = a["contrast"];
+  if (!c.contains("injections") || !c["injections"].is_array())
+    throw InputError(src, "assessment.contrast.injections", "expected an array");
+  for (std::size_t i = 0; i < c["injections"].size(); ++i)
+    if (!c["injections"][i].is_object())
+      throw InputError(src, internal::index_path("assessment.contrast.injections", i),
+                       "expected an object");
   for (auto& [k, v] : (*r.a)["summary"].items())
     if (!v.is_number() && !v.is_null())
       throw InputError(src, cat("assessment.summary.", k), "expected a number or null");
@@ -393,13 +407,17 @@ std::string path_svg(const Run& run, const Series& series, const Series* frames,
   double minx = 1e300, maxx = -1e300, miny = 1e300, maxy = -1e300;
   for (const Json& inst : (*run.a)["instruments"]) {
     const std::string name = str(inst, "name");
-    const int cx = series.column(name + "_tip_x_mm");
-    if (cx < 0) continue;
+    const int cx = series.column(name + "_tip_x_mm"), cy = series.column(name + "_tip_y_mm"),
+              cz = series.column(name + "_tip_z_mm");
+    if (cx < 0 || cy < 0 || cz < 0) continue;
     std::vector<Eigen::Vector2d> pts;
     for (const auto& r : series.rows) {
-      if (!std::isfinite(r[static_cast<std::size_t>(cx)])) continue;
-      const Vec3 p = Vec3(r[static_cast<std::size_t>(cx)], r[static_cast<std::size_t>(cx) + 1],
-                          r[static_cast<std::size_t>(cx) + 2]) *
+      if (!std::isfinite(r[static_cast<std::size_t>(cx)]) ||
+          !std::isfinite(r[static_cast<std::size_t>(cy)]) ||
+          !std::isfinite(r[static_cast<std::size_t>(cz)]))
+        continue;
+      const Vec3 p = Vec3(r[static_cast<std::size_t>(cx)], r[static_cast<std::size_t>(cy)],
+                          r[static_cast<std::size_t>(cz)]) *
                      1e-3;
       const Eigen::Vector2d d = project_to_detector(pose, p);
       const Eigen::Vector2d px((d.x() / pose.fov + 0.5) * size, (0.5 - d.y() / pose.fov) * size);
@@ -535,7 +553,7 @@ fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const Re
   mu::data d;
   d.set("scenario", str(m, "scenario"));
   d.set("outcome", str(m, "outcome"));
-  d.set("success", mu::data(m.value("success", false)));
+  d.set("success", mu::data(m.contains("success") && m["success"] == true));
   d.set("input", m.contains("input") ? str(m["input"], "type") : "");
   d.set("procedure_time", fmt(end, 1));
   d.set("state_hash", str(m, "state_hash"));
@@ -559,16 +577,18 @@ fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const Re
         {"name", str(i, "name")},
         {"kind", str(i, "kind")},
         {"catalogue", str(i, "catalogue")},
-        {"insertions", std::to_string(i.value("insertions", 0))},
+        {"insertions", fmt(num(i, "insertions", 0), 0)},
         {"tip_path", fmt(num(i, "tip_path_mm", 0), 0)},
         {"peak_hand", fmt(num(i, "peak_hand_force_n", 0), 2)},
         {"peak_wall", fmt(num(i, "peak_tip_wall_force_n", 0), 2)},
         {"threshold", i.contains("force_threshold_n") && i["force_threshold_n"].is_number()
                           ? fmt(i["force_threshold_n"].get<double>(), 2)
                           : std::string("-")},
-        {"events", std::to_string(i.contains("force_events") ? i["force_events"].size() : 0)},
+        {"events", std::to_string(i.contains("force_events") && i["force_events"].is_array()
+                                      ? i["force_events"].size()
+                                      : 0)},
         {"wrong", fmt(num(i, "wrong_branch_time_s", 0), 2)},
-        {"entries", std::to_string(i.value("wrong_branch_entries", 0))}});
+        {"entries", fmt(num(i, "wrong_branch_entries", 0), 0)}});
   }
   d.set("instruments", insts);
   // Timeline and events

@@ -186,6 +186,14 @@ TEST(ReportCli, BadRunFoldersAreRefusedWithExitStatusTwo) {
   noa.erase("assessment");
   expect_refused("report " + variant("noassess", noa.dump()).string(),
                  "metrics.json: assessment: expected");
+  nlohmann::json badinst = j;
+  badinst["assessment"]["instruments"][0] = 7;
+  expect_refused("report " + variant("badinst", badinst.dump()).string(),
+                 "assessment.instruments[0]: expected an object");
+  nlohmann::json noview = j;
+  noview["assessment"].erase("view");
+  expect_refused("report " + variant("noview", noview.dump()).string(),
+                 "assessment.view: expected an object");
   nlohmann::json badsum = j;
   badsum["assessment"]["summary"]["fluoroscopy_time_s"] = "long";
   expect_refused("report " + variant("badsum", badsum.dump()).string(),
