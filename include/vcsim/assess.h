@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "vcsim/sim.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
@@ -47,6 +48,13 @@ struct AssessmentSettings {
   double irp_offset = 0.15;                 // m, isocentre to reference point, toward the source
   // A guide's tip in a coronary this long counts as engaged (leaving it after: a disengagement).
   double engaged_time = 0.5;  // s
+  // Deep intubation: a catheter's tip more than this far into the coronary tree (past a typical
+  // left main, 10.5 +- 5.3 mm, clinical.md).
+  double deep_intubation = 10e-3;  // m
+  // Wire prolapse: a guidewire's distal `prolapse_length` pointing more than prolapse_angle away
+  // from the way into the coronary it is in (its tip folded back).
+  double prolapse_length = 3e-3;     // m
+  double prolapse_angle = 120.0 * kDeg;  // rad
   // Tips are located in the vessel tree every location_interval (as landmarks are); the time
   // series keeps one row per series_interval (forces: the largest magnitude within it).
   double location_interval = 5e-3;  // s
@@ -99,6 +107,15 @@ struct DoseEstimate {
 };
 DoseEstimate estimate_dose(double fluoro_time, std::int64_t cine_frames, double fov, double sid,
                            double sod, const AssessmentSettings& settings);
+
+// How far a place in a coronary segment lies into the coronary tree along its centrelines (m):
+// from the ostium of the first coronary segment on its way up (the left main's, the RCA's),
+// through the attach points of side branches. -1 outside the coronaries.
+double coronary_depth(const VesselTree& tree, const TreeLocation& loc);
+
+// True when a wire's distal direction (unit, toward its tip) points more than `angle` (rad) away
+// from `way_in` (unit, the vessel's direction away from the ostium at the tip).
+bool prolapsed(const Vec3& tip_direction, const Vec3& way_in, double angle);
 
 // The segments a tip may be in on the way from the access to the treatment target: the access'
 // and the target's segments and all their ancestors, and the aortic sinuses (where a guide seeks

@@ -78,6 +78,19 @@ DoseEstimate estimate_dose(double fluoro_time, std::int64_t cine_frames, double 
   return d;
 }
 
+double coronary_depth(const VesselTree& tree, const TreeLocation& loc) {
+  if (loc.segment < 0 || tree.segments[loc.segment].kind != VesselKind::kCoronary) return -1.0;
+  const int parent = tree.segments[loc.segment].parent;
+  if (parent < 0 || tree.segments[parent].kind != VesselKind::kCoronary)
+    return std::max(0.0, loc.distance - ostium_distance(tree, loc.segment));
+  // A coronary branch: the parent's depth where it leaves, then along the branch.
+  return coronary_depth(tree, {parent, attach_distance(tree, loc.segment)}) + loc.distance;
+}
+
+bool prolapsed(const Vec3& tip_direction, const Vec3& way_in, double angle) {
+  return tip_direction.dot(way_in) < std::cos(angle);
+}
+
 std::vector<unsigned char> allowed_segments(const VesselTree& tree) {
   std::vector<unsigned char> ok;
   if (tree.target.segment < 0 || tree.access.segment < 0) return ok;
@@ -124,6 +137,11 @@ struct Track {
   bool engaged = false;
   double engaged_at = -1.0;
   int disengagements = 0;
+  int prolapse_node = 0;  // the node prolapse_length behind the tip
+  // Deep intubation (catheters) and prolapse (guidewires): episodes, time, deepest
+  bool deep = false, folded = false;
+  int deep_count = 0, prolapse_count = 0;
+  double deep_time = 0.0, prolapse_time = 0.0, max_depth = -1.0;
   // The series' current bin and its rows
   double bin_force = 0.0, bin_wall = 0.0;
   std::vector<float> depth_mm, force_n, wall_n, x_mm, y_mm, z_mm;
@@ -145,6 +163,7 @@ struct Assessment::Impl {
   AssessmentSettings set;
   std::vector<Track> tracks;  // every instrument the run had, in order of appearance
   std::vector<unsigned char> allowed;
+  std::vector<unsigned char> retrograde;  // (segment) 1: the access' segment and its ancestors
   BeamTally beam;
   std::uint32_t buttons = 0;
   double flow = 0.0;      // m^3/s this step
@@ -208,6 +227,10 @@ struct Assessment::Impl {
       tr.tip_first = rm.n - 1;
       while (tr.tip_first > 0 && rm.node_s[rm.n - 1] - rm.node_s[tr.tip_first - 1] <= set.tip_zone)
         --tr.tip_first;
+      tr.prolapse_node = rm.n - 1;
+      while (tr.prolapse_node > 0 &&
+             rm.node_s[rm.n - 1] - rm.node_s[tr.prolapse_node] < set.prolapse_length)
+        --tr.prolapse_node;
       tr.last_tip = sim.tip(i);
     }
   }
@@ -217,6 +240,9 @@ Assessment::Assessment(const Simulator& sim, AssessmentSettings settings)
     : p_(std::make_unique<Impl>()) {
   p_->set = settings;
   p_->allowed = allowed_segments(sim.tree());
+  p_->retrograde.assign(sim.tree().segments.size(), 0);
+  for (int sg = sim.tree().access.segment; sg >= 0; sg = sim.tree().segments[sg].parent)
+    p_->retrograde[static_cast<std::size_t>(sg)] = 1;
   p_->pose = scenario_pose(sim.scenario());
   p_->bind(sim);
   for (const Lesion& l : sim.tree().lesions) {
@@ -359,6 +385,7 @@ void Assessment::after_step(const Simulator& sim) {
     for (Track& tr : p.tracks) {
       if (tr.index < 0 || !tr.inside) {
         if (tr.wrong) tr.wrong = false;
+        tr.deep = tr.folded = false;
         if (tr.engaged) {
           tr.engaged = false;
           p.close(tr.name + " engaged", t);
@@ -407,6 +434,38 @@ void Assessment::after_step(const Simulator& sim) {
             p.close(tr.name + " engaged", t);
           }
         }
+      }
+      // Deep intubation of a catheter; prolapse of a wire in a coronary
+      if (tr.kind == InstrumentKind::kCatheter) {
+        const double depth = coronary_depth(sim.tree(), h.loc);
+        tr.max_depth = std::max(tr.max_depth, depth);
+        const bool deep = depth > set.deep_intubation;
+        if (deep) tr.deep_time += dl;
+        if (deep && !tr.deep) {
+          ++tr.deep_count;
+          p.marks.push_back({t, "deep intubation", tr.name});
+        }
+        tr.deep = deep;
+      }
+      if (tr.kind == InstrumentKind::kGuidewire) {
+        bool folded = false;
+        if (tr.in_coronary) {
+          const RodState& rod = sim.instrument(tr.index).rod;
+          const Vec3 d = rod.x.back() - rod.x[static_cast<std::size_t>(tr.prolapse_node)];
+          // The way in: toward the root on the access' side (instruments go up against the
+          // flow from the groin), along the flow beyond it.
+          const VesselSegment& sg = sim.tree().segments[seg];
+          const Vec3 way_in = p.retrograde[static_cast<std::size_t>(seg)]
+                                  ? Vec3(-tangent_at(sg, h.loc.distance))
+                                  : tangent_at(sg, h.loc.distance);
+          folded = d.norm() > 0.0 && prolapsed(d.normalized(), way_in, set.prolapse_angle);
+        }
+        if (folded) tr.prolapse_time += dl;
+        if (folded && !tr.folded) {
+          ++tr.prolapse_count;
+          p.marks.push_back({t, "wire prolapse", tr.name});
+        }
+        tr.folded = folded;
       }
       // Lesions crossed by a wire's tip
       if (tr.kind == InstrumentKind::kGuidewire)
@@ -532,6 +591,9 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
                    {"cine_fps", set.cine_fps},
                    {"irp_offset_mm", set.irp_offset * 1e3},
                    {"engaged_time_s", set.engaged_time},
+                   {"deep_intubation_mm", set.deep_intubation * 1e3},
+                   {"prolapse_length_mm", set.prolapse_length * 1e3},
+                   {"prolapse_angle_deg", set.prolapse_angle * 180.0 / kPi},
                    {"location_interval_s", set.location_interval},
                    {"series_interval_s", set.series_interval}};
   a["procedure_time_s"] = end;
@@ -551,6 +613,7 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
   a["contrast"] = {{"volume_ml", p.volume * 1e6}, {"injections", inj}};
   Json insts = Json::array();
   int events_wire = 0, events_catheter = 0, entries = 0, insertions = 0, disengagements = 0;
+  int deep_count = 0, prolapse_count = 0;
   double wrong_time = 0.0;
   for (const Track& tr : p.tracks) {
     Json ev = Json::array();
@@ -581,7 +644,16 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
     if (tr.kind == InstrumentKind::kCatheter) {
       e["engaged_s"] = num_or_null(tr.engaged_at);
       e["disengagements"] = tr.disengagements;
+      e["max_coronary_depth_mm"] = tr.max_depth >= 0.0 ? Json(tr.max_depth * 1e3) : Json(nullptr);
+      e["deep_intubations"] = tr.deep_count;
+      e["deep_intubation_time_s"] = tr.deep_time;
     }
+    if (tr.kind == InstrumentKind::kGuidewire) {
+      e["prolapses"] = tr.prolapse_count;
+      e["prolapse_time_s"] = tr.prolapse_time;
+    }
+    deep_count += tr.deep_count;
+    prolapse_count += tr.prolapse_count;
     insts.push_back(e);
   }
   a["instruments"] = insts;
@@ -683,6 +755,8 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
                   {"exchanges", p.exchanges},
                   {"insertions", insertions},
                   {"guide_disengagements", disengagements},
+                  {"deep_intubations", deep_count},
+                  {"wire_prolapses", prolapse_count},
                   {"time_to_cross_s", num_or_null(time_to_cross)},
                   {"residual_stenosis_percent", num_or_null(residual)},
                   {"balloon_to_artery_ratio", num_or_null(ratio)},

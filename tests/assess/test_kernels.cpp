@@ -121,5 +121,29 @@ TEST(WrongBranch, OnlyTheWayToTheTargetAndTheSinusesAreAllowed) {
   }
 }
 
+TEST(CoronaryDepth, CountsFromTheOstiumThroughBranchPoints) {
+  const VesselTree tree = default_patient();
+  const int lm = tree.find("left_main"), lad = tree.find("lad"), root = tree.find("aortic_root");
+  ASSERT_GE(lm, 0);
+  ASSERT_GE(lad, 0);
+  const double ost = ostium_distance(tree, lm);
+  EXPECT_NEAR(coronary_depth(tree, {lm, ost + 4e-3}), 4e-3, 1e-12);
+  EXPECT_EQ(coronary_depth(tree, {lm, 0.5 * ost}), 0.0);  // still in the ostium's mouth
+  // 12 mm down the LAD: the left main up to where the LAD leaves it, and 12 mm more.
+  EXPECT_NEAR(coronary_depth(tree, {lad, 12e-3}), attach_distance(tree, lad) - ost + 12e-3, 1e-12);
+  EXPECT_GT(coronary_depth(tree, {lad, 12e-3}), 12e-3);
+  EXPECT_EQ(coronary_depth(tree, {root, 10e-3}), -1.0);
+}
+
+TEST(Prolapse, ATipPointingBackMoreThanTheAngleIsProlapsed) {
+  const Vec3 in = Vec3::UnitZ();
+  const double a = 120.0 * kDeg;
+  EXPECT_FALSE(prolapsed(in, in, a));
+  EXPECT_FALSE(prolapsed(Vec3(1, 0, 0), in, a));  // across the vessel: 90 degrees
+  EXPECT_FALSE(prolapsed(Vec3(std::sin(115 * kDeg), 0, std::cos(115 * kDeg)), in, a));
+  EXPECT_TRUE(prolapsed(Vec3(std::sin(125 * kDeg), 0, std::cos(125 * kDeg)), in, a));
+  EXPECT_TRUE(prolapsed(-in, in, a));
+}
+
 }  // namespace
 }  // namespace vcsim::test

@@ -129,12 +129,6 @@ TEST(Session, PedalsSyringeAndExchangesGiveTheirKnownFigures) {
   EXPECT_NEAR(cine_rows, 40, 2);
 }
 
-TEST(Session, WatchingDoesNotChangeTheState) {
-  const fs::path d1 = scratch("watched"), d2 = scratch("unwatched");
-  const Session a = run_session(d1, pedal_scenario(), kPedalTimeline, {}, true);
-  const Session b = run_session(d2, pedal_scenario(), kPedalTimeline, {}, false);
-  EXPECT_EQ(a.hash, b.hash);
-}
 
 // A straight coronary trunk entered from a continuation ("leg", the access 10 mm inside its open
 // end); the target is a side branch at 50 mm; straight ahead beyond the trunk's closed start, a
@@ -195,6 +189,22 @@ TEST(Session, AStraightWireIntoAWrongBranchAndAcrossItsLesionAtKnownTimes) {
                   w["first_in_coronary_s"].get<double>(),
               1e-9);
   EXPECT_EQ(w["insertions"], 1);
+  // A straight wire running straight never folds back.
+  EXPECT_EQ(w["prolapses"], 0);
+}
+
+TEST(Session, WatchingDoesNotChangeTheState) {
+  const fs::path d1 = scratch("watched"), d2 = scratch("unwatched");
+  const Session a = run_session(d1, pedal_scenario(), kPedalTimeline, {}, true);
+  const Session b = run_session(d2, pedal_scenario(), kPedalTimeline, {}, false);
+  EXPECT_EQ(a.hash, b.hash);
+  // A wire in contact with the wall, located in the tree as it goes.
+  const std::string push = R"({"keyframes": [
+    {"t_s": 0, "instruments": {"wire": {"translation_mm": 0, "rotation_deg": 0}}},
+    {"t_s": 3, "instruments": {"wire": {"translation_mm": 200, "rotation_deg": 90}}}]})";
+  const Session c = run_session(d1, branch_scenario(d1), push, {}, true);
+  const Session e = run_session(d2, branch_scenario(d2), push, {}, false);
+  EXPECT_EQ(c.hash, e.hash);
 }
 
 // A straight wire in a straight coronary tube with a closed end 110 mm from the access.
