@@ -198,6 +198,7 @@ struct Assessment::Impl {
   std::vector<Crossing> crossings;
   double inflated_since = -1.0;
   std::size_t procedure_events = 0;  // of ProcedureState::events already marked
+  bool fluoro_open = false, cine_open = false;  // the beam's timeline intervals
   CArmPose pose;                     // the scenario's C-arm (field size for the dose)
 
   Track& track(const std::string& name) {
@@ -291,20 +292,15 @@ void Assessment::after_step(const Simulator& sim) {
   const int before_cine = p.beam.cine_runs;
   const double fluoro_before = p.beam.fluoro_time, cine_before = p.beam.cine_time;
   p.beam.step(dt, p.buttons, set.cine_fps);
-  if (p.beam.cine_runs != before_cine) {
-    p.close("fluoroscopy", p.step_start);
-    p.open("cine", p.step_start);
-  }
-  auto row_open = [&](const std::string& row) {
-    for (auto it = p.intervals.rbegin(); it != p.intervals.rend(); ++it)
-      if (it->row == row) return it->end < 0.0;
-    return false;
-  };
   const bool cine_now = p.beam.cine_time > cine_before;
   const bool fluoro_now = p.beam.fluoro_time > fluoro_before;
-  if (!cine_now && row_open("cine")) p.close("cine", p.step_start);
-  if (fluoro_now && !row_open("fluoroscopy")) p.open("fluoroscopy", p.step_start);
-  if (!fluoro_now && row_open("fluoroscopy")) p.close("fluoroscopy", p.step_start);
+  // The timeline's beam rows: a new interval where the beam's mode changes.
+  if (p.cine_open && (!cine_now || p.beam.cine_runs != before_cine)) p.close("cine", p.step_start);
+  if (p.fluoro_open && !fluoro_now) p.close("fluoroscopy", p.step_start);
+  if (cine_now && (!p.cine_open || p.beam.cine_runs != before_cine)) p.open("cine", p.step_start);
+  if (fluoro_now && !p.fluoro_open) p.open("fluoroscopy", p.step_start);
+  p.cine_open = cine_now;
+  p.fluoro_open = fluoro_now;
   // Contrast
   if (p.flow > 0.0) {
     if (p.injections.empty() || p.injections.back().end >= 0.0) {

@@ -104,6 +104,19 @@ TEST(Session, PedalsSyringeAndExchangesGiveTheirKnownFigures) {
   // The assessment's volume is the simulator's.
   EXPECT_NEAR(a["contrast"]["volume_ml"].get<double>(), s.metrics["contrast_volume_ml"].get<double>(),
               1e-9);
+  // The timeline's rows: fluoroscopy 0.5-12.5 s, then cine 12.5-14.5 s.
+  std::vector<std::pair<double, double>> fluoro, cine;
+  for (const Json& iv : a["intervals"]) {
+    const std::pair<double, double> se{iv["start_s"].get<double>(), iv["end_s"].get<double>()};
+    if (iv["row"] == "fluoroscopy") fluoro.push_back(se);
+    if (iv["row"] == "cine") cine.push_back(se);
+  }
+  ASSERT_EQ(fluoro.size(), 1u);
+  ASSERT_EQ(cine.size(), 1u);
+  EXPECT_NEAR(fluoro[0].first, 0.5, 2 * dt);
+  EXPECT_NEAR(fluoro[0].second, 12.5, 2 * dt);
+  EXPECT_NEAR(cine[0].first, 12.5, 2 * dt);
+  EXPECT_NEAR(cine[0].second, 14.5, 2 * dt);
   EXPECT_EQ(a["exchanges"], 2);
   EXPECT_EQ(a["summary"]["exchanges"], 2);
   EXPECT_NEAR(a["procedure_time_s"].get<double>(), 15.0, 2 * dt);
