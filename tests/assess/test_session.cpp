@@ -143,6 +143,37 @@ TEST(Session, PedalsSyringeAndExchangesGiveTheirKnownFigures) {
 }
 
 
+TEST(Session, ACopiedAssessmentRewindsWithTheState) {
+  // As the trainer rewinds: the state and the assessment copied at 6 s, the run taken on to
+  // 10 s, both put back, and the run finished: the figures are those of one run to the end.
+  Simulator sim(pedal_scenario());
+  ScriptedTimeline tl = ScriptedTimeline::parse(R"({"keyframes": [
+    {"t_s": 0, "instruments": {"wire": {"translation_mm": 0, "rotation_deg": 0}}, "buttons": 0},
+    {"t_s": 0.5, "buttons": 1},
+    {"t_s": 1, "syringe_flow_ml_s": 8}, {"t_s": 2, "syringe_flow_ml_s": 0},
+    {"t_s": 4, "syringe_flow_ml_s": 8}, {"t_s": 5, "syringe_flow_ml_s": 0},
+    {"t_s": 7, "syringe_flow_ml_s": 8}, {"t_s": 8, "syringe_flow_ml_s": 0},
+    {"t_s": 12.5, "buttons": 0}]})",
+                                                "rewind.json");
+  tl.bind(sim.instrument_names());
+  Assessment assessment(sim);
+  RunLoopSettings ls;
+  ls.end_time = 6.0;
+  run_loop(sim, tl, ls, &assessment);
+  const SimState snap = sim.snapshot();
+  const Assessment saved = assessment;
+  ls.end_time = 10.0;
+  run_loop(sim, tl, ls, &assessment);
+  EXPECT_EQ(assessment.injections(), 3);
+  sim.restore(snap);
+  assessment = saved;
+  EXPECT_EQ(assessment.injections(), 2);
+  ls.end_time = 13.0;
+  run_loop(sim, tl, ls, &assessment);
+  EXPECT_NEAR(assessment.beam().fluoro_time, 12.0, 2e-3);
+  EXPECT_EQ(assessment.injections(), 3);
+}
+
 // A straight coronary trunk entered from a continuation ("leg", the access 10 mm inside its open
 // end); the target is a side branch at 50 mm; straight ahead beyond the trunk's closed start, a
 // branch on the same axis ("side", a wrong branch) holds a lesion 20-26 mm beyond its ostium.
