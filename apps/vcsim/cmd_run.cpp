@@ -248,9 +248,14 @@ int cmd_run(const RunOptions& o) {
   if (commands) commands->finish(sim).save(o.record);
   print_run_summary(std::cout, sim, report, frames_dir, metrics);
   if (!o.no_report) {
-    const double t0 = now_us();
-    const fs::path html = write_report(out);
-    std::cout << "  report:  " << html.string() << " (" << (now_us() - t0) * 1e-6 << " s)\n";
+    // The run's files are written: a page that cannot be made is reported, not the run's status.
+    try {
+      const double t0 = now_us();
+      const fs::path html = write_report(out);
+      std::cout << "  report:  " << html.string() << " (" << (now_us() - t0) * 1e-6 << " s)\n";
+    } catch (const std::exception& e) {
+      std::cerr << "run: report not written: " << e.what() << "\n";
+    }
   }
   if (replay && replay->recording().state_hash != 0) {
     const bool same = replay->recording().state_hash == sim.state().hash();

@@ -123,6 +123,19 @@ TEST(ReportCli, OpensInChromiumWithoutErrorsWithItsPlotsAndFramesDrawn) {
   EXPECT_GT(levels, 100);
 }
 
+TEST(ReportCli, ARunWhosePageCannotBeMadeKeepsItsStatusAndSaysSo) {
+  const fs::path d = make_run("no_template");
+  // Written again from the run's scenario, this time with the page template missing.
+  const CliResult r = run_cli("run " + (d.parent_path() / "s.json").string() +
+                                  " --quiet --no-frames --out " + d.string(),
+                              "VCSIM_REPORT_TEMPLATE=/nonexistent/report.html.mustache ");
+  EXPECT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.err.find("report not written: /nonexistent/report.html.mustache: file: expected"),
+            std::string::npos)
+      << r.err;
+  EXPECT_TRUE(fs::exists(d / "metrics.json"));
+}
+
 TEST(ReportCli, CompareAndCsvListEveryRun) {
   const fs::path a = make_run("cmp_a", 100), b = make_run("cmp_b", 120);
   const fs::path out = scratch("cmp");
