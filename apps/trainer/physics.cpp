@@ -16,7 +16,11 @@ constexpr int kPublishEvery = 2;
 }  // namespace
 
 PhysicsThread::PhysicsThread(const Scenario& scenario, IgtlServer* device)
-    : sim_(scenario), device_(device), initial_(sim_.snapshot()) {
+    : sim_(scenario),
+      device_(device),
+      initial_(sim_.snapshot()),
+      assess_(sim_),
+      initial_assess_(assess_) {
   const auto n = static_cast<std::size_t>(sim_.num_instruments());
   recording_.scenario = scenario.name;
   recording_.scenario_file = scenario.source;
@@ -27,7 +31,7 @@ PhysicsThread::PhysicsThread(const Scenario& scenario, IgtlServer* device)
   cmds_.reset(n);
   dev_cmds_.reset(n);
   op_.drive.assign(n, DriveCommand{});
-  ring_.push_back({initial_, 0.0});
+  ring_.push_back({initial_, 0.0, initial_assess_});
   next_snapshot_ = kSnapshotEvery;
   lags_.reserve(1 << 20);
   publish(false);
@@ -160,6 +164,7 @@ std::optional<InputError> PhysicsThread::apply_exchange(const InstrumentChange& 
     return e;
   }
   recording_.append_exchange(c);
+  assess_.exchanged(sim_, c);
   ++exchanges_made_;
   scene_changed(c);
   // A rewind stays on this side of the exchange: the snapshots start again after the next step
@@ -204,6 +209,7 @@ void PhysicsThread::handle(Request r, double seconds) {
       const Saved& s = ring_.back();
       sim_.restore(s.state);
       fluoro_time_ = s.fluoro_time;
+      assess_ = s.assessment;
       // The recording keeps exactly the steps that led to the restored state.
       recording_.truncate(s.state.metrics.steps);
       next_snapshot_ = s.state.time() + kSnapshotEvery;
@@ -217,9 +223,10 @@ void PhysicsThread::handle(Request r, double seconds) {
       const std::vector<std::string> before = sim_.instrument_names();
       sim_.restore(initial_);
       ring_.clear();
-      ring_.push_back({initial_, 0.0});
+      ring_.push_back({initial_, 0.0, initial_assess_});
       next_snapshot_ = kSnapshotEvery;
       fluoro_time_ = 0.0;
+      assess_ = initial_assess_;
       recording_.clear();
       ++restarts_;
       message_ = "restarted";
@@ -293,7 +300,9 @@ void PhysicsThread::loop() {
     stats_.max_lag = std::max(stats_.max_lag, last_lag_);
     if (last_lag_ > dt) ++stats_.late_steps;
     poll_commands();
+    assess_.before_step(sim_, cmds_);
     sim_.step(cmds_);
+    assess_.after_step(sim_);
     recording_.append(cmds_);
     if (cmds_.buttons & kButtonFluoro) fluoro_time_ += dt;
     if (device_) {
@@ -301,7 +310,7 @@ void PhysicsThread::loop() {
       device_->publish(feedback_);
     }
     if (sim_.time() >= next_snapshot_ - 1e-9) {
-      ring_.push_back({sim_.snapshot(), fluoro_time_});
+      ring_.push_back({sim_.snapshot(), fluoro_time_, assess_});
       if (ring_.size() > kSnapshots) ring_.pop_front();
       next_snapshot_ += kSnapshotEvery;
     }

@@ -15,6 +15,7 @@
 #include <thread>
 #include <vector>
 
+#include "vcsim/assess.h"
 #include "vcsim/haptics.h"
 #include "vcsim/render.h"
 #include "vcsim/sim.h"
@@ -99,6 +100,9 @@ class PhysicsThread {
   double fluoro_time() const { return fluoro_time_; }
   int rewinds() const { return rewinds_; }
   int exchanges() const { return exchanges_made_; }
+  // What the session measured (docs/assessment.md), of the steps that led to the final state: a
+  // rewind takes it back with the state.
+  const Assessment& assessment() const { return assess_; }
   int restarts() const { return restarts_; }
 
   // Snapshots for a rewind: one every kSnapshotEvery s of simulated time, the last kSnapshots.
@@ -123,6 +127,7 @@ class PhysicsThread {
   struct Saved {
     SimState state;
     double fluoro_time = 0.0;
+    Assessment assessment;
   };
   std::deque<Saved> ring_;
   double next_snapshot_ = 0.0;
@@ -132,6 +137,7 @@ class PhysicsThread {
   int exchanges_made_ = 0;
   std::vector<HandFeedback> feedback_;
   double fluoro_time_ = 0.0;
+  Assessment assess_, initial_assess_;
   int rewinds_ = 0, restarts_ = 0;
   std::vector<float> lags_;
   RunLoopStats stats_;

@@ -21,6 +21,7 @@
 #include <stdexcept>
 #include <thread>
 
+#include "vcsim/assess.h"
 #include "vcsim/units.h"
 
 namespace vcsim::trainer {
@@ -550,6 +551,7 @@ void Viewer::finish() {
     }
     const fs::path metrics = o_.out / "metrics.json";
     write_run_metrics(metrics, sim, report);
+    physics_.assessment().write(o_.out, sim);  // the session's assessment (docs/assessment.md)
     // The trainer's own figures beside the run's (the assessment reads both).
     nlohmann::json j;
     {
@@ -576,8 +578,15 @@ void Viewer::finish() {
     }
     j["trainer"] = t;
     std::ofstream(metrics) << j.dump(2) << "\n";
+    fs::path html;
+    try {
+      html = write_report(o_.out);
+    } catch (const std::exception& e) {  // the session is saved; only its page is missing
+      std::cerr << "trainer: report not written: " << e.what() << "\n";
+    }
     std::cerr << "trainer: session saved: " << rec_file.string() << " (" << rec.steps()
-              << " steps, " << rec.num_runs() << " runs), " << metrics.string() << "\n"
+              << " steps, " << rec.num_runs() << " runs), " << metrics.string()
+              << (html.empty() ? std::string() : ", " + html.string()) << "\n"
               << "trainer: replay it with: vcsim run " << o_.scenario_file << " --replay "
               << rec_file.string() << "\n";
   }

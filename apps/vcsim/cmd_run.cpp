@@ -17,6 +17,7 @@
 
 #include "commands.h"
 #include "run_support.h"
+#include "vcsim/assess.h"
 #include "vcsim/render.h"
 #include "vcsim/sim.h"
 
@@ -45,6 +46,7 @@ struct RunOptions {
   std::string force_log;  // CSV of the hand forces, every step ("" = none)
   std::string replay;     // a command recording to replay (a trainer session), "" = none
   std::string record;     // where to write the run's command recording, "" = none
+  bool no_report = false;  // skip DIR/report.html (the assessment is written all the same)
 };
 
 // What the command line does around each step: the autopilot's log, the force log, the command
@@ -207,12 +209,18 @@ int cmd_run(const RunOptions& o) {
   }
   RunDisplay display(o, pilot.get(), film.get(), force_log.get(), commands.get(), report.end_time,
                      report.input_type);
+  // The assessment watches the run from outside its state (docs/assessment.md).
+  Assessment assessment(sim);
+  assessment.follow(pilot.get());
+  ObserverList observers;
+  observers.add(&display);
+  observers.add(&assessment);
   RunLoopSettings loop_settings;
   loop_settings.end_time = report.end_time;
   loop_settings.realtime = report.realtime;
   loop_settings.stop = &stop_on_signal.flag();
   const double loop0 = now_us();
-  report.loop = run_loop(sim, input, loop_settings, &display);
+  report.loop = run_loop(sim, input, loop_settings, &observers);
   if (device) device->stop();        // the connection closes with the run; the counts are final
   if (recorder) recorder->finish();  // the last frames are written before the clock stops
   report.frames = recorder ? recorder->frames() : 0;
@@ -237,11 +245,22 @@ int cmd_run(const RunOptions& o) {
   }
   const fs::path metrics = out / "metrics.json";
   write_run_metrics(metrics, sim, report);
+  assessment.write(out, sim, film ? std::span<const Vec3>(film->isocentres()) : std::span<const Vec3>());
   if (commands) commands->finish(sim).save(o.record);
   print_run_summary(std::cout, sim, report, frames_dir, metrics);
   if (o.profile)
     std::cout << "  the step by stage over " << sim.profile().steps << " steps:\n"
               << sim.profile().table();
+  if (!o.no_report) {
+    // The run's files are written: a page that cannot be made is reported, not the run's status.
+    try {
+      const double t0 = now_us();
+      const fs::path html = write_report(out);
+      std::cout << "  report:  " << html.string() << " (" << (now_us() - t0) * 1e-6 << " s)\n";
+    } catch (const std::exception& e) {
+      std::cerr << "run: report not written: " << e.what() << "\n";
+    }
+  }
   if (replay && replay->recording().state_hash != 0) {
     const bool same = replay->recording().state_hash == sim.state().hash();
     std::cout << "  replay:  " << replay->recording().steps() << " steps, state hash "
@@ -277,6 +296,8 @@ void install(CLI::App& app, int& status) {
   cmd->add_option("--record", o->record,
                   "Write the run's commands and instrument exchanges to this command recording "
                   "(replayed by --replay to the same final state)");
+  cmd->add_flag("--no-report", o->no_report,
+                "Do not write DIR/report.html (metrics.json, series.csv are written all the same)");
   cmd->callback([o, &status, cmd] {
     o->port_given = cmd->count("--port") > 0;
     o->address_given = cmd->count("--address") > 0;

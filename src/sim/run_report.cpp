@@ -80,6 +80,10 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
   const SimMetrics& m = sim.metrics();
   const double frame_dt = 1.0 / sc.fluoro.fps;
   nlohmann::json j;
+  // Schema version 2 (docs/assessment.md): version 1 had no format key; 2 adds it and the
+  // assessment section (written by the assess layer after this).
+  j["format"] = "vcsim-metrics";
+  j["version"] = 2;
   j["scenario"] = sc.name;
   j["scenario_file"] = r.scenario_file;
   j["dt_s"] = sc.dt;

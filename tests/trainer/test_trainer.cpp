@@ -327,6 +327,13 @@ TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameSta
   const nlohmann::json m = read_json(d / "metrics.json");
   EXPECT_EQ(m["input"]["type"], "trainer");
   EXPECT_GT(m["fluoroscopy_time_s"].get<double>(), 0.0);
+  // The session's assessment counts the same pedal time, and its report is written
+  // (docs/assessment.md).
+  EXPECT_EQ(m["assessment"]["beam"]["source"], "pedals");
+  EXPECT_NEAR(m["assessment"]["beam"]["fluoroscopy_time_s"].get<double>(),
+              m["fluoroscopy_time_s"].get<double>(), 1e-6);
+  EXPECT_GT(m["assessment"]["contrast"]["volume_ml"].get<double>(), 0.0);
+  EXPECT_TRUE(fs::exists(d / "report.html"));
   EXPECT_GT(m["contrast_volume_ml"].get<double>(), 0.0);
   EXPECT_EQ(replay_hash(d), m["state_hash"].get<std::string>());
 }
