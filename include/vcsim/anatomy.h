@@ -376,6 +376,11 @@ class BeatingLumen {
   // vertices and normals are overwritten.
   void gather(TriangleMesh& out) const;
 
+  // Whether any moving part of the wall can ever (any phase, any breath, any lesion opening) come
+  // within `radius` of `centre`: false lets a contact query's clearance there stay valid while
+  // the heart beats. Allocates nothing; not thread-safe (shared scratch).
+  bool moves_near(const Vec3& centre, double radius) const;
+
   int num_patches() const { return static_cast<int>(patches_.size()); }  // moving patches
   const CardiacMotion& motion() const { return motion_; }
   // Largest displacement amplitudes over the moving vertices (m): |a_cardiac|, |a_resp|.
@@ -425,6 +430,7 @@ class BeatingLumen {
   // Moving patches binned by their box at cardiac phases c = k / (n - 1), each grown to cover
   // half a bin either side and any respiration, so a node is looked up in the grid of its phase.
   std::vector<PatchGrid> phase_grids_;
+  PatchGrid reach_grid_;  // moving patches binned by their reach boxes (moves_near)
   // Morph vertices: their places in the patches (patch index, -1 for the static part; local
   // vertex), listed from morph_start_[k] to morph_start_[k + 1] for morph vertex k.
   std::vector<int> morph_start_, morph_patch_, morph_local_;

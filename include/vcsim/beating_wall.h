@@ -24,6 +24,7 @@ class BeatingWall final : public VesselWall {
   Vec3 velocity(const SphereContact& hit) const override;
   // max |a_cardiac| max |dc/dt| + max |a_resp| max |dr/dt| over the moving wall.
   double speed_bound() const override { return speed_bound_; }
+  bool moves_near(const Vec3& centre, double radius) const override;
 
  private:
   BeatingLumen* lumen_;

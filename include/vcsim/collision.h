@@ -263,6 +263,14 @@ class VesselWall {
   // Bound on the wall's speed anywhere (m/s), 0 for a static wall. Lets the contact detection
   // skip nodes that cannot have reached the wall since their last query.
   virtual double speed_bound() const { return 0.0; }
+  // Whether a moving part of the wall can ever come within `radius` of `centre` (any moving wall
+  // anywhere by default). False lets the contact detection keep a clearance measured there
+  // while the wall moves elsewhere (a node in the still aorta while the heart beats).
+  virtual bool moves_near(const Vec3& centre, double radius) const {
+    (void)centre;
+    (void)radius;
+    return speed_bound() > 0.0;
+  }
 };
 
 // A wall that does not move: a lumen mesh and its AABB tree (owned elsewhere, must outlive it).

@@ -215,10 +215,13 @@ struct InstrumentState {
   // Set by each step from its command.
   bool parked = false;
   // Contact coherence (physics.md 6): where each node was last queried and the wall-free radius
-  // found around that point (0: touching or unknown), and how far the wall may have moved since.
-  // It decides which nodes are queried and how wide, so it is state, not scratch.
+  // found around that point (0: touching or unknown), how far a moving wall may have moved since
+  // the start (wall_travel, summed at its speed bound) and at each node's query (travel_at; -1
+  // where no moving part of the wall can ever reach the queried sphere: the still aorta while the
+  // heart beats). It decides which nodes are queried and how wide, so it is state, not scratch.
   std::vector<Vec3> query_centre;  // (n)
   std::vector<double> clearance;   // (n)
+  std::vector<double> travel_at;   // (n) m, or -1
   double wall_travel = 0.0;        // m
   BalloonHold hold;                // (sized n when a balloon is inflated)
 };

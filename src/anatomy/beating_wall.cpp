@@ -30,6 +30,10 @@ void BeatingWall::query_spheres(std::span<const Vec3> centres, std::span<const d
   lumen_->query_spheres(centres, radii, out);
 }
 
+bool BeatingWall::moves_near(const Vec3& centre, double radius) const {
+  return lumen_->moves_near(centre, radius);
+}
+
 Vec3 BeatingWall::velocity(const SphereContact& hit) const {
   const CardiacMotion& m = lumen_->motion();
   // The rest point under the contact: one fixed-point step X = x - u(x) (the field is smooth and

@@ -306,7 +306,16 @@ BeatingLumen::BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion
       return b;
     });
   }
+  build_grid(reach_grid_, true, [](const Patch& p) { return p.reach; });
   seen_.assign(patches_.size(), 0);
+}
+
+bool BeatingLumen::moves_near(const Vec3& centre, double radius) const {
+  bool near = false;
+  for_each_candidate(reach_grid_, centre, radius, [&](int pi) {
+    near = near || overlaps(patches_[static_cast<std::size_t>(pi)].reach, centre, radius);
+  });
+  return near;
 }
 
 Aabb BeatingLumen::box_at(const Patch& p, double c, double r) const {

@@ -39,6 +39,9 @@ class ProcedureWall final : public VesselWall {
                      std::span<SphereContact> out) override;
   Vec3 velocity(const SphereContact& hit) const override;
   double speed_bound() const override { return lumen->speed_bound(); }
+  // The lumen's moving parts, and near a deployed stent (it beats with its vessel) whenever the
+  // lumen moves at all.
+  bool moves_near(const Vec3& centre, double radius) const override;
 
  private:
   void add_stents(std::span<const Vec3> centres, std::span<const double> radii,

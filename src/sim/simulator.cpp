@@ -132,7 +132,7 @@ std::size_t SimState::bytes() const {
     const RodState& r = in.rod;
     b += sizeof(InstrumentState) + bytes_of(r.x) + bytes_of(r.v) + bytes_of(r.q) +
          bytes_of(r.omega) + bytes_of(r.f_ext) + bytes_of(r.tau_ext) + bytes_of(in.query_centre) +
-         bytes_of(in.clearance);
+         bytes_of(in.clearance) + bytes_of(in.travel_at);
   }
   b += bytes_of(contrast.concentration) + bytes_of(contrast.arrival) + bytes_of(contrast.history);
   const SimMetrics& m = metrics;
@@ -509,7 +509,8 @@ void Simulator::restore(const SimState& snap) {
     const RodModel& r = md.solver.instruments[i].rod();
     if (in.rod.x.size() != static_cast<std::size_t>(r.n) ||
         in.rod.q.size() != static_cast<std::size_t>(r.m) ||
-        in.clearance.size() != static_cast<std::size_t>(r.n))
+        in.clearance.size() != static_cast<std::size_t>(r.n) ||
+        in.travel_at.size() != static_cast<std::size_t>(r.n))
       refuse("node count of instrument " + std::to_string(i));
   }
   if (snap.solver.split < 1 || snap.solver.split > md.solver.max_split()) refuse("split");

@@ -30,6 +30,17 @@ void ProcedureWall::query_spheres(std::span<const Vec3> centres, std::span<const
   add_stents(centres, radii, out);
 }
 
+bool ProcedureWall::moves_near(const Vec3& centre, double radius) const {
+  if (lumen->moves_near(centre, radius)) return true;
+  if (lumen->speed_bound() <= 0.0) return false;
+  // A stent's tube is placed where the heart has carried it each step: within its reach of its
+  // middle now, plus more than any cardiac displacement (2 cm) for where it may go.
+  constexpr double kStentTravel = 0.02;
+  for (const StentTube& t : stents)
+    if ((centre - t.middle).norm() < t.reach + radius + kStentTravel) return true;
+  return false;
+}
+
 Vec3 ProcedureWall::velocity(const SphereContact& hit) const {
   return lumen->velocity(hit);
 }

@@ -131,7 +131,10 @@ void detect_contacts(const Inst& in, VesselWall& wall, const SolverSettings& set
     if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i] || in.held(i) || in_sheath(in, i)) continue;
     const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt;
     if (s.clearance[i] > 0.0) {
-      const double moved = (st.x[i] - s.query_centre[i]).norm() + s.wall_travel;
+      // How far the node has gone from where it was queried, and the wall toward it since (none
+      // where no moving part of the wall can reach that query's sphere).
+      const double travel = s.travel_at[i] < 0.0 ? 0.0 : s.wall_travel - s.travel_at[i];
+      const double moved = (st.x[i] - s.query_centre[i]).norm() + travel;
       if (moved + reach < s.clearance[i]) continue;  // the wall cannot be within reach
     }
     w.query_nodes[nq] = i;
@@ -144,29 +147,29 @@ void detect_contacts(const Inst& in, VesselWall& wall, const SolverSettings& set
     ++nq;
   }
   if (nq == 0) return;
-  if (s.wall_travel > 0.0) {
-    // Clearances measured before the wall moved are stale for every node: start afresh.
-    std::fill(s.clearance.begin(), s.clearance.end(), 0.0);
-    for (LeafCache& c : w.leaf_cache) c.clear();
-    s.wall_travel = 0.0;
-  }
   wall.query_spheres(std::span<const Vec3>(w.query_points.data(), nq),
                      std::span<const double>(w.query_radii.data(), nq),
                      std::span<LeafCache* const>(w.query_caches.data(), nq), set.leaf_cache_slack,
                      std::span<SphereContact>(w.hits.data(), nq));
+  const bool moving = wall.speed_bound() > 0.0;
   for (int k = 0; k < nq; ++k) {
     const int i = w.query_nodes[k];
     const SphereContact& h = w.hits[k];
     const double r = node_radius(md, i);
     s.query_centre[i] = st.x[i];
+    // The wall's travel counts from this query on, unless no moving part can reach its sphere.
+    auto mark = [&](double clearance) {
+      s.clearance[i] = clearance;
+      s.travel_at[i] = moving && wall.moves_near(st.x[i], clearance) ? s.wall_travel : -1.0;
+    };
     if (!h.touching) {
-      s.clearance[i] = w.query_radii[k];
+      mark(w.query_radii[k]);
       continue;
     }
     const double depth = h.centre_outside ? r + h.distance : r - h.distance;
     const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt - r;
     if (!h.centre_outside && depth < -reach) {
-      s.clearance[i] = h.distance;  // near, but not within reach this step
+      mark(h.distance);  // near, but not within reach this step
       continue;
     }
     s.clearance[i] = 0.0;  // in contact: query again next step

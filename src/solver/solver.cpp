@@ -361,6 +361,7 @@ InstrumentState sized_state(const RodModel& md, RodState rod) {
   s.rod = std::move(rod);
   s.query_centre.assign(md.n, Vec3::Zero());
   s.clearance.assign(md.n, 0.0);
+  s.travel_at.assign(md.n, 0.0);
   return s;
 }
 
@@ -407,7 +408,8 @@ SolverState make_solver_state(const SolverModel& model, std::vector<InstrumentSt
                          std::to_string(instruments.size()));
   for (std::size_t i = 0; i < instruments.size(); ++i)
     if (instruments[i].rod.x.size() != static_cast<std::size_t>(model.instruments[i].rod().n) ||
-        instruments[i].clearance.size() != instruments[i].rod.x.size())
+        instruments[i].clearance.size() != instruments[i].rod.x.size() ||
+        instruments[i].travel_at.size() != instruments[i].rod.x.size())
       throw InputError("solver", "instruments[" + std::to_string(i) + "]",
                        "expected a state of that instrument's model (node count)");
   SolverState st;
@@ -426,6 +428,7 @@ void SolverState::hash_into(StateHasher& h) const {
     h.add_value(in.parked);
     h.add(in.query_centre);
     h.add(in.clearance);
+    h.add(in.travel_at);
     h.add_value(in.wall_travel);
     const BalloonHold& b = in.hold;
     h.add_value(b.first);

@@ -188,3 +188,105 @@ TEST(BeatingWall, AWireInTheBeatingLadMovesWithIt) {
   EXPECT_LT(stays.mean_wire, 0.2 * stays.mean_vessel);
   EXPECT_GT(stays.worst_outside, 0.0);
 }
+
+// moves_near (the contact coherence's test): where it says no moving part of the wall can come
+// within r, none does at any phase (the whole wall gathered at nine times over a beat), and it
+// says yes in the beating LAD and no in the still abdominal aorta.
+TEST(BeatingWall, MovesNearIsTrueWhereverTheWallMoves) {
+  const VesselTree& tree = patient();
+  const Lumen& lu = patient_lumen();
+  const CardiacMotion mo(tree, MotionSettings{});
+  BeatingLumen bl(lu.mesh, mo);
+  BeatingWall wall(bl);
+  const VesselSegment& lad = tree.segments[tree.find("lad")];
+  const VesselSegment& aorta = tree.segments[tree.find("abdominal_aorta")];
+  EXPECT_TRUE(wall.moves_near(point_at(lad, 20 * mm), 1 * mm));
+  EXPECT_FALSE(wall.moves_near(point_at(aorta, 0.5 * segment_length(aorta)), 3 * mm));
+  // Points sampled along every segment's centreline, and radii of 1 and 4 mm.
+  std::vector<std::pair<Vec3, double>> probes;
+  for (const VesselSegment& seg : tree.segments)
+    for (int k = 0; k <= 10; ++k)
+      for (double r : {1 * mm, 4 * mm}) {
+        const Vec3 p = point_at(seg, segment_length(seg) * k / 10.0);
+        if (!wall.moves_near(p, r)) probes.emplace_back(p, r);
+      }
+  const int still = static_cast<int>(probes.size());
+  TriangleMesh now;
+  std::vector<Vec3> moved;
+  for (int j = 0; j < 6; ++j) {
+    bl.update_all(mo.period() * j / 6.0 + 0.01);
+    bl.gather(now);
+    moved.clear();
+    for (std::size_t v = 0; v < now.vertices.size(); ++v)
+      if ((now.vertices[v] - lu.mesh.vertices[v]).norm() > 1e-12) moved.push_back(now.vertices[v]);
+    ASSERT_FALSE(moved.empty());
+    for (const auto& [p, r] : probes)
+      for (const Vec3& v : moved)
+        ASSERT_GE((v - p).norm(), r) << "a moved wall vertex within r of a still probe";
+  }
+  EXPECT_GT(still, 100) << "most of the tree (aorta, iliacs) is still";
+}
+
+namespace {
+
+// The beating wall with moves_near true everywhere: what the contact detection did before it
+// asked (every node queried again whenever the wall moved anywhere).
+struct MovingEverywhere final : VesselWall {
+  BeatingWall& w;
+  explicit MovingEverywhere(BeatingWall& wall) : w(wall) {}
+  void set_time(double t) override { w.set_time(t); }
+  void query_spheres(std::span<const Vec3> c, std::span<const double> r,
+                     std::span<SphereContact> out) override {
+    w.query_spheres(c, r, out);
+  }
+  Vec3 velocity(const SphereContact& hit) const override { return w.velocity(hit); }
+  double speed_bound() const override { return w.speed_bound(); }
+  bool moves_near(const Vec3&, double) const override { return true; }
+};
+
+// The LAD wire of wire_in_lad, but 30 mm along the still abdominal aorta, laid 8 mm off its axis
+// and drifting toward its wall at 50 mm/s.
+test::Rig wire_in_aorta(const VesselSegment& aorta) {
+  test::Rig inst = wire_in_lad(aorta, 0.4 * segment_length(aorta));
+  const Vec3 t = (inst.rod().x.back() - inst.rod().x.front()).normalized();
+  const Vec3 side = t.unitOrthogonal();
+  for (int i = 0; i < inst.md().n; ++i) {
+    inst.rod().x[i] += 8 * mm * side;
+    inst.rod().v[i] = 0.05 * side;
+  }
+  return inst;
+}
+
+}  // namespace
+
+// Contact coherence while the heart beats: a wire in the still aorta is queried only as it moves,
+// not as the wall moves elsewhere (against the same wall that says it moves everywhere, whose
+// clearances shrink at its speed bound), and it meets the wall exactly as it does there.
+TEST(BeatingWall, NodesAwayFromTheMovingWallKeepTheirCoherence) {
+  const VesselTree& tree = patient();
+  const Lumen& lu = patient_lumen();
+  const CardiacMotion mo(tree, MotionSettings{});
+  BeatingLumen bl_a(lu.mesh, mo), bl_b(lu.mesh, mo);
+  BeatingWall a(bl_a), b_inner(bl_b);
+  MovingEverywhere b(b_inner);
+  const VesselSegment& aorta = tree.segments[tree.find("abdominal_aorta")];
+  test::Rig ra = wire_in_aorta(aorta), rb = wire_in_aorta(aorta);
+  SolverSettings set;
+  set.rod.dt = 1e-3;
+  set.rod.drag = 1.0;
+  set.rod.angular_drag = 1.0;
+  int queries_a = 0, queries_b = 0, contacts = 0;
+  for (int k = 0; k < 400; ++k) {
+    StepProfile pa, pb;
+    ra.step(&a, set, DriveCommand{}, &pa);
+    rb.step(&b, set, DriveCommand{}, &pb);
+    queries_a += pa.num_queries;
+    queries_b += pb.num_queries;
+    contacts += pa.num_contacts;
+    ASSERT_EQ(ra.rod().x, rb.rod().x) << "step " << k;
+    ASSERT_EQ(ra.rod().v, rb.rod().v) << "step " << k;
+  }
+  std::printf("queries: %d (moving everywhere: %d), contacts %d\n", queries_a, queries_b, contacts);
+  EXPECT_GT(contacts, 0) << "the wire reached the wall";
+  EXPECT_LT(queries_a, queries_b);
+}
