@@ -35,6 +35,7 @@ struct RunOptions {
   bool no_frames = false;
   bool quiet = false;
   bool profile = false;   // print the step's stages (mean, p50, p99)
+  int threads = 0;        // at most this many threads for the physics (0: as many as pay)
   bool trace = false;
   double time_limit_s = 0.0;  // 0: the scenario's
   std::string device;         // "" (the scenario's input) or "igtl"
@@ -129,6 +130,9 @@ int cmd_run(const RunOptions& o) {
   if (o.time_limit_s != 0.0)
     sc.time_limit = require_in_range(o.time_limit_s, 0.0, 3600.0, "run", "--time-limit");
   scenario_pose(sc);  // a bad C-arm setting fails before the scene is built
+  std::optional<ThreadLimit> threads;
+  if (o.threads != 0)
+    threads.emplace(static_cast<int>(require_in_range(o.threads, 1, 256, "run", "--threads")));
   if (!o.replay.empty() && !o.device.empty())
     throw InputError("run", "--replay", "expected either --replay or --device, not both");
   // A recording to replay is read before the scene is built: a bad file fails at once.
@@ -277,6 +281,9 @@ void install(CLI::App& app, int& status) {
   cmd->add_option("--out", o->out, "Output folder (default: out/<scenario name>)");
   cmd->add_flag("--no-frames", o->no_frames, "Physics only: no fluoroscopy frames");
   cmd->add_flag("--quiet", o->quiet, "No progress output");
+  cmd->add_option("--threads", o->threads,
+                  "At most this many threads for the physics (1: all on one core; the results "
+                  "are the same with any count)");
   cmd->add_flag("--profile", o->profile,
                 "Print the step's stages (mean, median, 99th percentile per step; also in "
                 "metrics.json, \"profile\")");

@@ -509,6 +509,22 @@ class Simulator {
 // ---------------------------------------------------------------------------------------------
 // Running against an input source, as fast as possible or in real time
 
+// While one lives, the engine's parallel work (instruments of 256 nodes or more side by side,
+// wall-query batches) runs on at most `threads` threads, the caller's included (1: all on the
+// caller's thread, leaving the other cores to a renderer or a window). The results are the same
+// bit for bit with any count (Simulator.TheStepIsTheSameOnOneThread). `threads` >= 1.
+class ThreadLimit {
+ public:
+  explicit ThreadLimit(int threads);
+  ~ThreadLimit();
+  ThreadLimit(const ThreadLimit&) = delete;
+  ThreadLimit& operator=(const ThreadLimit&) = delete;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
 // Paces simulated time to the wall clock. wait(t) sleeps (never spins) until the wall clock has
 // run t - t0 seconds since the first call (t0 its argument), so a paced run never gets ahead of
 // real time. When the caller is behind, wait() returns at once and records the lag; a step is

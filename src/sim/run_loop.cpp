@@ -4,6 +4,8 @@
 #include <chrono>
 #include <thread>
 
+#include <tbb/global_control.h>
+
 #include "vcsim/core.h"
 #include "vcsim/sim.h"
 
@@ -81,5 +83,16 @@ RunLoopStats run_loop(Simulator& sim, InputSource& input, const RunLoopSettings&
   stats.resyncs = pacer.resyncs();
   return stats;
 }
+
+struct ThreadLimit::Impl {
+  explicit Impl(int threads)
+      : control(tbb::global_control::max_allowed_parallelism,
+                static_cast<std::size_t>(std::max(1, threads))) {}
+  tbb::global_control control;
+};
+
+ThreadLimit::ThreadLimit(int threads) : impl_(std::make_unique<Impl>(threads)) {}
+
+ThreadLimit::~ThreadLimit() = default;
 
 }  // namespace vcsim

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -175,6 +176,35 @@ TEST(Snapshot, TheDefaultScenariosHashAfterTwoSecondsIsPinned) {
   EXPECT_EQ(sim.metrics().steps, 4000);
   EXPECT_EQ(sim.state().hash(), 0x63bd868bdd9f7ebcull)
       << "now 0x" << std::hex << sim.state().hash();
+}
+
+}  // namespace
+}  // namespace vcsim
+
+namespace vcsim {
+namespace {
+
+// The engine's threads change no result (docs/architecture.md, "Threads"): the default scene's
+// first second (the J wire and the guide, 256 nodes each, side by side on two threads when the
+// machine has them) is the same bit for bit on one thread, hand forces included.
+TEST(Simulator, TheStepIsTheSameOnOneThread) {
+  auto run = [](bool one) {
+    std::optional<ThreadLimit> limit;
+    if (one) limit.emplace(1);
+    Simulator sim(load_scenario(default_scenarios_dir() / "default.json"));
+    Autopilot pilot(sim);
+    StepCommands cmds;
+    double force = 0.0;
+    while (sim.time() < 1.0 - 1e-9) {
+      pilot.command(sim, cmds);
+      sim.step(cmds);
+      force += sim.instrument(0).drive.axial_force;
+    }
+    return std::make_pair(sim.state().hash(), force);
+  };
+  const auto many = run(false), one = run(true);
+  EXPECT_EQ(many.first, one.first);
+  EXPECT_EQ(many.second, one.second);
 }
 
 }  // namespace
