@@ -256,7 +256,8 @@ void Controls::select(int instrument, double now_us) {
 
 void Controls::set_instruments(std::vector<std::string> instruments, double now_us) {
   if (instruments == names_) return;
-  const std::string was = names_.empty() ? std::string() : names_[static_cast<std::size_t>(selected_)];
+  const std::string was =
+      names_.empty() ? std::string() : names_[static_cast<std::size_t>(selected_)];
   int pick = -1, same = -1;
   for (std::size_t i = 0; i < instruments.size(); ++i) {
     if (std::find(names_.begin(), names_.end(), instruments[i]) == names_.end() && pick < 0)

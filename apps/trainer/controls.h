@@ -138,7 +138,7 @@ class Controls {
   OperatorCommands cmd_;
   int selected_ = 0;
   double deploy_pressure_ = 0.0;  // Pa
-  std::map<int, double> keys_;  // key -> when pressed (now_us)
+  std::map<int, double> keys_;    // key -> when pressed (now_us)
   int mods_ = 0;
   bool fluoro_key_ = false, cine_key_ = false, inject_key_ = false, deploy_ = false;
   bool fluoro_pad_ = false, cine_pad_ = false, inject_pad_ = false;

@@ -276,8 +276,8 @@ void Viewer::draw_menu() {
       const InstrumentSpec& spec = scene_model().specs[i];
       if (!spec.balloon) continue;
       char name[96];
-      std::snprintf(name, sizeof name, "%s: nominal %.0f atm", view_.instruments.size() > i
-                    ? view_.instruments[i].c_str() : spec.name.c_str(),
+      std::snprintf(name, sizeof name, "%s: nominal %.0f atm",
+                    view_.instruments.size() > i ? view_.instruments[i].c_str() : spec.name.c_str(),
                     spec.balloon->nominal_pressure / kAtm);
       if (ImGui::MenuItem(name)) controls_.set_balloon(spec.balloon->nominal_pressure, now_us());
     }
@@ -330,7 +330,8 @@ void Viewer::draw_ui() {
         "E (hold)             inject contrast at the set flow\n"
         "J / L, I / K         C-arm RAO / LAO, CAU / CRA;  F1-F7 standard views\n"
         "+ / - (or wheel)     field size;  Ctrl + arrows  table pan\n"
-        "[ / ]  \\            indeflator -1 / +1 atm, deflate;  Enter: the stent system's nominal pressure\n"
+        "[ / ]  \\            indeflator -1 / +1 atm, deflate;  Enter: the stent system's nominal "
+        "pressure\n"
         "P pause, B rewind 5 s, Ctrl+R restart, G 3D view, H keys, Esc end and save\n"
         "Gamepad: left stick drive, right stick C-arm, A fluoro, B inject, X cine,\n"
         "         LB/RB select, triggers field size, d-pad table, Back pause, Start rewind");

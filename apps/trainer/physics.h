@@ -56,7 +56,7 @@ struct ViewState {
   std::uint64_t input_seq = 0;              // OperatorCommands::seq the last step used
   double lag = 0.0;                         // s, the last step's lag behind the wall clock
   int rollbacks = 0;
-  std::vector<std::uint8_t> landmarks;  // (landmark) 1 when reached
+  std::vector<std::uint8_t> landmarks;   // (landmark) 1 when reached
   std::vector<std::string> instruments;  // the scene's, in order (an exchange changes them)
   int exchanges = 0;                     // instrument exchanges made in the session
   IgtlStats device;
@@ -152,7 +152,7 @@ class PhysicsThread {
   OperatorCommands op_;
   std::vector<std::pair<Request, double>> requests_;
   std::vector<InstrumentChange> exchanges_;  // asked for by the window, not yet made
-  ViewState view_;  // the latest copy handed over
+  ViewState view_;                           // the latest copy handed over
   ViewState back_;  // filled by the physics thread outside the lock, then swapped in
 };
 

@@ -224,7 +224,8 @@ void View3D::draw(const FrameSnapshot& frame, int selected) {
   std::vector<Part> parts;
   if (frame.model) {
     radius_.clear();
-    for (const InstrumentSpec& spec : frame.model->specs) radius_.push_back(0.5 * spec.outer_diameter);
+    for (const InstrumentSpec& spec : frame.model->specs)
+      radius_.push_back(0.5 * spec.outer_diameter);
   }
   for (std::size_t i = 0; i < frame.nodes.size(); ++i) {
     const std::vector<Vec3>& nodes = frame.nodes[i];

@@ -36,8 +36,7 @@ void install(CLI::App& app, int& status) {
   cmd->add_option("--template", o->template_file, "Mustache page template (default: data/report)");
   cmd->callback([o, &status, cmd] {
     if (cmd->get_subcommands().empty()) {
-      if (o->run_dir.empty())
-        throw InputError("report", "RUN_DIR", "expected the folder of a run");
+      if (o->run_dir.empty()) throw InputError("report", "RUN_DIR", "expected the folder of a run");
       ReportOptions ro;
       ro.template_file = o->template_file;
       const double t0 = now_us();
@@ -48,7 +47,8 @@ void install(CLI::App& app, int& status) {
   });
   cmd->require_subcommand(0, 1);
 
-  auto* cmp = cmd->add_subcommand("compare", "Progress over sessions: one HTML page, runs in order");
+  auto* cmp =
+      cmd->add_subcommand("compare", "Progress over sessions: one HTML page, runs in order");
   cmp->add_option("runs", o->runs, "Run folders, oldest first")->required();
   cmp->add_option("--out", o->out, "HTML file to write (default: compare.html)");
   cmp->callback([o, &status] {

@@ -34,8 +34,8 @@ struct RunOptions {
   std::string out;
   bool no_frames = false;
   bool quiet = false;
-  bool profile = false;   // print the step's stages (mean, p50, p99)
-  int threads = 0;        // at most this many threads for the physics (0: as many as pay)
+  bool profile = false;  // print the step's stages (mean, p50, p99)
+  int threads = 0;       // at most this many threads for the physics (0: as many as pay)
   bool trace = false;
   double time_limit_s = 0.0;  // 0: the scenario's
   std::string device;         // "" (the scenario's input) or "igtl"
@@ -44,9 +44,9 @@ struct RunOptions {
   std::string address = "127.0.0.1";
   bool address_given = false;
   bool realtime = false;
-  std::string force_log;  // CSV of the hand forces, every step ("" = none)
-  std::string replay;     // a command recording to replay (a trainer session), "" = none
-  std::string record;     // where to write the run's command recording, "" = none
+  std::string force_log;   // CSV of the hand forces, every step ("" = none)
+  std::string replay;      // a command recording to replay (a trainer session), "" = none
+  std::string record;      // where to write the run's command recording, "" = none
   bool no_report = false;  // skip DIR/report.html (the assessment is written all the same)
 };
 
@@ -249,7 +249,8 @@ int cmd_run(const RunOptions& o) {
   }
   const fs::path metrics = out / "metrics.json";
   write_run_metrics(metrics, sim, report);
-  assessment.write(out, sim, film ? std::span<const Vec3>(film->isocentres()) : std::span<const Vec3>());
+  assessment.write(out, sim,
+                   film ? std::span<const Vec3>(film->isocentres()) : std::span<const Vec3>());
   if (commands) commands->finish(sim).save(o.record);
   print_run_summary(std::cout, sim, report, frames_dir, metrics);
   if (o.profile)

@@ -140,8 +140,8 @@ struct Tube {
     test::TubeSpecs t;
     t.lesion_percent = 60;
     t.catalogue = mode == 2 ? "stent-cocr-3.0x18" : "balloon-sc-3.0x15";
-    const auto dir = std::filesystem::temp_directory_path() /
-                     ("vcsim_bench_tube_" + std::to_string(mode));
+    const auto dir =
+        std::filesystem::temp_directory_path() / ("vcsim_bench_tube_" + std::to_string(mode));
     sim = std::make_unique<Simulator>(test::balloon_in_tube(dir, t));
     cmds.reset(2);
     for (DriveCommand& d : cmds.drive) d.mode = DriveCommand::Mode::kPosition;
@@ -179,8 +179,12 @@ void BM_TubeStep(benchmark::State& state) {
                                    : static_cast<double>(sim.state().procedure.stents[0].phase ==
                                                          StentState::Phase::kDeployed);
 }
-BENCHMARK(BM_TubeStep)->Arg(0)->Arg(1)->Arg(2)->ArgName("deflated0_inflated1_stent2")->Unit(
-    benchmark::kMicrosecond);
+BENCHMARK(BM_TubeStep)
+    ->Arg(0)
+    ->Arg(1)
+    ->Arg(2)
+    ->ArgName("deflated0_inflated1_stent2")
+    ->Unit(benchmark::kMicrosecond);
 
 // The default run's moments and the autopilot's commands right after each, recorded once.
 struct Moments {

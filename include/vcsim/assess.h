@@ -35,10 +35,10 @@ struct AssessmentSettings {
   // A force event: the largest tip contact force of a guidewire whose tip is in a coronary, or
   // of a catheter, low-passed (first order, force_time_constant: a load held, not a one-step
   // impulse), above its threshold; it ends once the force stays below it for event_gap.
-  double coronary_wire_force = 0.15;   // N
-  double catheter_force = 1.0;         // N
-  double force_time_constant = 0.01;   // s
-  double event_gap = 0.05;             // s
+  double coronary_wire_force = 0.15;  // N
+  double catheter_force = 1.0;        // N
+  double force_time_constant = 0.01;  // s
+  double event_gap = 0.05;            // s
   // Dose model: reference air kerma at the interventional reference point (IEC 60601-2-43:
   // 15 cm from the isocentre toward the source) = rate x fluoroscopy time + per-frame x cine
   // frames; the kerma-area product is that times the field's area at the reference point.
@@ -53,7 +53,7 @@ struct AssessmentSettings {
   double deep_intubation = 10e-3;  // m
   // Wire prolapse: a guidewire's distal `prolapse_length` pointing more than prolapse_angle away
   // from the way into the coronary it is in (its tip folded back).
-  double prolapse_length = 3e-3;     // m
+  double prolapse_length = 3e-3;         // m
   double prolapse_angle = 120.0 * kDeg;  // rad
   // Tips are located in the vessel tree every location_interval (as landmarks are); the time
   // series keeps one row per series_interval (forces: the largest magnitude within it).
@@ -101,9 +101,9 @@ struct ThresholdEvents {
 
 // Dose estimate from beam-on time (the model of AssessmentSettings; docs/assessment.md).
 struct DoseEstimate {
-  double air_kerma = 0.0;         // Gy at the interventional reference point
+  double air_kerma = 0.0;           // Gy at the interventional reference point
   double kerma_area_product = 0.0;  // Gy m^2
-  double field_area = 0.0;        // m^2 at the reference point
+  double field_area = 0.0;          // m^2 at the reference point
 };
 DoseEstimate estimate_dose(double fluoro_time, std::int64_t cine_frames, double fov, double sid,
                            double sod, const AssessmentSettings& settings);

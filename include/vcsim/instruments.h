@@ -25,13 +25,13 @@ const char* to_string(InstrumentKind k);
 struct BalloonSpec {
   enum class Compliance { kSemiCompliant, kNonCompliant };
   Compliance compliance = Compliance::kSemiCompliant;
-  double nominal_diameter = 3.0e-3;       // (m) at nominal pressure, the labelled size
-  double length = 15e-3;                  // working length (m) at nominal pressure
-  double distal_offset = 4e-3;            // from the catheter's tip to the balloon's distal end (m)
+  double nominal_diameter = 3.0e-3;  // (m) at nominal pressure, the labelled size
+  double length = 15e-3;             // working length (m) at nominal pressure
+  double distal_offset = 4e-3;       // from the catheter's tip to the balloon's distal end (m)
   double nominal_pressure = 8 * 101325.0;       // (Pa)
   double rated_burst_pressure = 14 * 101325.0;  // (Pa)
-  double crossing_profile = 0.9e-3;  // outer diameter over the folded balloon (m)
-  double lengthening = 1.0e-3;       // working length gained from nominal to rated burst (m)
+  double crossing_profile = 0.9e-3;             // outer diameter over the folded balloon (m)
+  double lengthening = 1.0e-3;  // working length gained from nominal to rated burst (m)
   // The compliance chart: free diameter (m) at each gauge pressure (Pa), pressures strictly
   // increasing from at most the nominal to at least the rated burst pressure, diameters
   // non-decreasing; the nominal pressure gives the nominal diameter.

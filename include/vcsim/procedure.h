@@ -104,7 +104,7 @@ struct BalloonState {
   std::vector<double> lumen_s;
   double lumen_time = -1.0;
   std::uint64_t lumen_epoch = 0;
-  static constexpr double kRefit = 10e-3;      // s
+  static constexpr double kRefit = 10e-3;       // s
   static constexpr double kRefitMove = 0.1e-3;  // m along the vessel
   // (balloon nodes) arc length of each node along last.segment, when last inflated there
   std::vector<double> s;
@@ -152,7 +152,7 @@ struct ProcedureState {
   // each change re-morphs the lumen)
   std::vector<LesionOpening> wall_opening;
   static constexpr double kWallOpeningStep = 2e-3;
-  std::uint64_t wall_epoch = 0;  // counts the changes of the wall's shape (openings, stents)
+  std::uint64_t wall_epoch = 0;        // counts the changes of the wall's shape (openings, stents)
   std::vector<ProcedureEvent> events;  // in order (capacity reserved: rare)
   bool refusing = false;  // a pressure with no balloon in the patient was refused (logged once)
 

@@ -392,8 +392,8 @@ class SimFluoroscopy {
   std::vector<Slots> instruments_;
   std::vector<Slots> spare_;                 // slots of instruments removed (hidden)
   std::shared_ptr<const SimModel> slotted_;  // the model instruments_ follows (null: the first)
-  std::vector<int> balloons_, stents_;  // mesh ids (balloon), (stent frame slot)
-  std::size_t balloon_models_ = 0;     // balloons of the procedure model with meshes
+  std::vector<int> balloons_, stents_;       // mesh ids (balloon), (stent frame slot)
+  std::size_t balloon_models_ = 0;           // balloons of the procedure model with meshes
   std::vector<float> line_integral_;
 };
 

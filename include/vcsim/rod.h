@@ -51,15 +51,15 @@ struct RodDef {
   double youngs_modulus = 1.0e9;  // shaft E (Pa)
   double shear_modulus = 0.0;     // G (Pa); 0 means E / (2 (1 + poisson))
   double poisson = 0.3;
-  double outer_radius = 0.5e-3;       // (m)
-  double inner_radius = 0.0;          // (m), 0 for a solid wire
-  double density = 1000.0;            // (kg/m^3)
-  double tip_length = 0.0;            // soft tip length (m)
-  double tip_modulus_ratio = 1.0;     // alpha = E_tip / E_shaft, in (0, 1]
+  double outer_radius = 0.5e-3;    // (m)
+  double inner_radius = 0.0;       // (m), 0 for a solid wire
+  double density = 1000.0;         // (kg/m^3)
+  double tip_length = 0.0;         // soft tip length (m)
+  double tip_modulus_ratio = 1.0;  // alpha = E_tip / E_shaft, in (0, 1]
   // Tapered distal end (a balloon catheter's tip): the outer radius falls linearly over the last
   // taper_length to taper_outer_radius at the tip; section, mass and stiffness follow. 0: none.
-  double taper_length = 0.0;        // (m)
-  double taper_outer_radius = 0.0;  // (m), in (inner_radius, outer_radius] when tapered
+  double taper_length = 0.0;          // (m)
+  double taper_outer_radius = 0.0;    // (m), in (inner_radius, outer_radius] when tapered
   std::vector<TipSection> tip_shape;  // rest shape of the distal end
   // Parallel-constraint penalty K_p (N). 0 selects the physical shear stiffness kappa G A
   // (kappa = 0.9), which makes the model a discrete Timoshenko rod.

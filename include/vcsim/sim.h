@@ -94,18 +94,18 @@ struct AutopilotPhase {
   double goal_distance = 0.0;  // m beyond the goal segment's ostium
   double tolerance = 3e-3;     // m: the goal counts as reached within this arc length
   std::string follower;
-  double follow_gap = 0.03;  // m
-  double depth = 0.0;        // m (withdraw)
-  std::string relative_to;   // (withdraw)
-  double flow = 0.0;         // m^3/s (inject)
-  double duration = 0.0;     // s (inject, wait)
-  double speed = 0.1;        // m/s, advance and withdrawal speed
-  double seat = 0.0;         // m pushed on once the goal is reached (navigate)
-  int lesion = 0;            // (place)
+  double follow_gap = 0.03;      // m
+  double depth = 0.0;            // m (withdraw)
+  std::string relative_to;       // (withdraw)
+  double flow = 0.0;             // m^3/s (inject)
+  double duration = 0.0;         // s (inject, wait)
+  double speed = 0.1;            // m/s, advance and withdrawal speed
+  double seat = 0.0;             // m pushed on once the goal is reached (navigate)
+  int lesion = 0;                // (place)
   double approach_speed = 0.01;  // m/s over the last 70 mm of the route (place: the coronary)
-  double pressure = 0.0;     // Pa (inflate)
-  double ramp = 3.0;         // s (inflate)
-  ScenarioInstrument added;  // (add) its name is `instrument`
+  double pressure = 0.0;         // Pa (inflate)
+  double ramp = 3.0;             // s (inflate)
+  ScenarioInstrument added;      // (add) its name is `instrument`
 };
 const char* to_string(AutopilotPhase::Kind k);
 
@@ -188,7 +188,8 @@ struct Scenario {
   std::vector<LesionMechanics> lesions;
   // What the treatment must achieve for the run to succeed, besides its landmarks.
   struct Targets {
-    double residual_stenosis = -1.0;  // fraction: every lesion's diameter stenosis below it (<0: none)
+    double residual_stenosis =
+        -1.0;  // fraction: every lesion's diameter stenosis below it (<0: none)
     bool stent_covers_lesion = false;  // a stent deployed over its lesion with 2 mm margins
   } targets;
   std::string timeline;  // timeline file (relative to the scenario's folder); "" = autopilot
@@ -382,8 +383,23 @@ struct SimStepProfile {
 // instruments' stages are summed over the fine steps; `substeps` is the solver's own work around
 // them (backups, the split, a re-split or rollback: the fine steps run again are in the others).
 enum class SimStage {
-  kProcedure, kWall, kDrive, kForces, kVelocities, kCollision, kCoupling, kDistance, kContacts,
-  kPositions, kFeedback, kSubsteps, kContrast, kMetrics, kLandmarks, kTotal, kCount
+  kProcedure,
+  kWall,
+  kDrive,
+  kForces,
+  kVelocities,
+  kCollision,
+  kCoupling,
+  kDistance,
+  kContacts,
+  kPositions,
+  kFeedback,
+  kSubsteps,
+  kContrast,
+  kMetrics,
+  kLandmarks,
+  kTotal,
+  kCount
 };
 inline constexpr int kNumSimStages = static_cast<int>(SimStage::kCount);
 const char* to_string(SimStage s);
@@ -412,7 +428,7 @@ bool all_landmarks_reached(const SimState& state);
 struct SimProfile {
   double wall_time = 0.0;  // s spent in step()
   std::int64_t steps = 0;
-  SimStepProfile sum;  // stage times summed over the steps (us)
+  SimStepProfile sum;                                   // stage times summed over the steps (us)
   std::array<DurationHistogram, kNumSimStages> stages;  // (SimStage) per-step times
   // Each stage's mean, median and 99th percentile per step (us): `vcsim run --profile`.
   std::string table() const;
@@ -562,8 +578,8 @@ struct RunLoopStats {
   std::int64_t late_steps = 0;  // real time only (RealTimePacer)
   double max_lag = 0.0;         // s
   std::int64_t resyncs = 0;
-  bool stopped = false;  // ended by RunLoopSettings::stop
-  int exchanges = 0;     // instrument exchanges applied
+  bool stopped = false;       // ended by RunLoopSettings::stop
+  int exchanges = 0;          // instrument exchanges applied
   int refused_exchanges = 0;  // and refused (the input source was told)
 };
 
@@ -751,9 +767,9 @@ class Autopilot {
   std::string status_;
   double next_trace_ = 0.0;
   double aim_distance_ = 0.0, aim_angle_ = 0.0;  // of the leader's tip to its aim (trace)
-  double pressure_ = 0.0;      // Pa commanded to the indeflator
+  double pressure_ = 0.0;                        // Pa commanded to the indeflator
   double placed_since_ = -1.0;  // s: the markers within tolerance of the target since then
-  int placed_ = -1;  // the instrument the last place phase placed (watched while inflating)
+  int placed_ = -1;          // the instrument the last place phase placed (watched while inflating)
   double place_goal_ = 0.0;  // m along the place route: the lesion's middle
   TreeLocation place_target_;  // the lesion's middle
   void place(const SimModel& model, const SimState& state, const AutopilotPhase& ph);

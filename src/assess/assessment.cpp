@@ -197,9 +197,9 @@ struct Assessment::Impl {
   };
   std::vector<Crossing> crossings;
   double inflated_since = -1.0;
-  std::size_t procedure_events = 0;  // of ProcedureState::events already marked
+  std::size_t procedure_events = 0;             // of ProcedureState::events already marked
   bool fluoro_open = false, cine_open = false;  // the beam's timeline intervals
-  CArmPose pose;                     // the scenario's C-arm (field size for the dose)
+  CArmPose pose;                                // the scenario's C-arm (field size for the dose)
 
   Track& track(const std::string& name) {
     for (Track& tr : tracks)
@@ -355,7 +355,8 @@ void Assessment::after_step(const Simulator& sim) {
       const double tip_s = rm.node_s[static_cast<std::size_t>(rm.n - 1)];
       for (const NodeContact& c : sim.contacts(i)) {
         if (c.node < tr.tip_first) continue;
-        const double inserted = in.drive.depth - (tip_s - rm.node_s[static_cast<std::size_t>(c.node)]);
+        const double inserted =
+            in.drive.depth - (tip_s - rm.node_s[static_cast<std::size_t>(c.node)]);
         if (inserted > md.sheath.length) wall = std::max(wall, c.lambda_n / fine_dt);
       }
     }
@@ -520,9 +521,15 @@ void Assessment::after_step(const Simulator& sim) {
   }
 }
 
-const BeamTally& Assessment::beam() const { return p_->beam; }
-int Assessment::injections() const { return static_cast<int>(p_->injections.size()); }
-int Assessment::exchanges() const { return p_->exchanges; }
+const BeamTally& Assessment::beam() const {
+  return p_->beam;
+}
+int Assessment::injections() const {
+  return static_cast<int>(p_->injections.size());
+}
+int Assessment::exchanges() const {
+  return p_->exchanges;
+}
 
 int Assessment::force_events(const std::string& name) const {
   for (const Track& tr : p_->tracks)
@@ -545,9 +552,13 @@ double Assessment::fluoroscopy_time() const {
 
 namespace {
 
-Json num_or_null(double v) { return std::isfinite(v) && v >= 0.0 ? Json(v) : Json(nullptr); }
+Json num_or_null(double v) {
+  return std::isfinite(v) && v >= 0.0 ? Json(v) : Json(nullptr);
+}
 
-double round_to(double v, double q) { return std::round(v / q) * q; }
+double round_to(double v, double q) {
+  return std::round(v / q) * q;
+}
 
 }  // namespace
 
@@ -562,8 +573,7 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
     std::ifstream in(metrics_file);
     if (!in) throw InputError(metrics_file.string(), "file", "expected the run's metrics.json");
     j = Json::parse(in, nullptr, false);
-    if (!j.is_object())
-      throw InputError(metrics_file.string(), "file", "expected a JSON object");
+    if (!j.is_object()) throw InputError(metrics_file.string(), "file", "expected a JSON object");
   }
   const double end = sim.time();
   // Beam: the pedals when the input used them, else the beam was on throughout (a headless run
@@ -574,8 +584,8 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
   const std::int64_t cine_frames = pedal ? p.beam.cine_frames : 0;
   const int cine_runs = pedal ? p.beam.cine_runs : 0;
   const CArmPose& pose = p.pose;
-  const DoseEstimate dose = estimate_dose(fluoro_time, cine_frames, pose.fov, pose.sid, pose.sod,
-                                          set);
+  const DoseEstimate dose =
+      estimate_dose(fluoro_time, cine_frames, pose.fov, pose.sid, pose.sod, set);
   Json a;
   a["settings"] = {{"tip_zone_mm", set.tip_zone * 1e3},
                    {"coronary_wire_force_n", set.coronary_wire_force},
@@ -629,10 +639,10 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
               {"tip_path_mm", tr.tip_path * 1e3},
               {"peak_hand_force_n", tr.peak_hand},
               {"peak_tip_wall_force_n", tr.force.peak},
-              {"force_threshold_n",
-               tr.kind == InstrumentKind::kCatheter    ? Json(set.catheter_force)
-               : tr.kind == InstrumentKind::kGuidewire ? Json(set.coronary_wire_force)
-                                                       : Json(nullptr)},
+              {"force_threshold_n", tr.kind == InstrumentKind::kCatheter ? Json(set.catheter_force)
+                                    : tr.kind == InstrumentKind::kGuidewire
+                                        ? Json(set.coronary_wire_force)
+                                        : Json(nullptr)},
               {"force_events", ev},
               {"wrong_branch_time_s", tr.wrong_time},
               {"wrong_branch_entries", tr.wrong_entries},
@@ -690,7 +700,8 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
   Json comp = Json::array();
   for (const Mark& m : p.marks)
     if (m.what == "procedure: rupture" || m.what == "procedure: over-expansion")
-      comp.push_back({{"time_s", m.time}, {"what", m.what.substr(11)}, {"instrument", m.instrument}});
+      comp.push_back(
+          {{"time_s", m.time}, {"what", m.what.substr(11)}, {"instrument", m.instrument}});
   a["treatment"] = {{"residual_stenosis_percent", num_or_null(residual)},
                     {"balloon_to_artery_ratio", num_or_null(ratio)},
                     {"max_pressure_atm", num_or_null(pressure)},
@@ -774,8 +785,8 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
   std::ofstream s(series_file);
   s << "time_s,beam,syringe_flow_ml_s,contrast_ml,beam_on_s,air_kerma_mgy";
   for (const Track& tr : p.tracks)
-    for (const char* col : {"depth_mm", "force_n", "tip_wall_force_n", "tip_x_mm", "tip_y_mm",
-                            "tip_z_mm"})
+    for (const char* col :
+         {"depth_mm", "force_n", "tip_wall_force_n", "tip_x_mm", "tip_y_mm", "tip_z_mm"})
       s << ',' << tr.name << '_' << col;
   s << '\n';
   char buf[64];

@@ -74,11 +74,20 @@ std::string xml_escape(const std::string& s) {
   std::string o;
   for (char c : s) {
     switch (c) {
-      case '&': o += "&amp;"; break;
-      case '<': o += "&lt;"; break;
-      case '>': o += "&gt;"; break;
-      case '"': o += "&quot;"; break;
-      default: o += c;
+      case '&':
+        o += "&amp;";
+        break;
+      case '<':
+        o += "&lt;";
+        break;
+      case '>':
+        o += "&gt;";
+        break;
+      case '"':
+        o += "&quot;";
+        break;
+      default:
+        o += c;
     }
   }
   return o;
@@ -123,7 +132,8 @@ Series read_csv(const fs::path& file, const std::string& what) {
     std::size_t start = 0;
     while (true) {
       const std::size_t comma = line.find(',', start);
-      const std::string cell = line.substr(start, comma == std::string::npos ? comma : comma - start);
+      const std::string cell =
+          line.substr(start, comma == std::string::npos ? comma : comma - start);
       if (cell.empty()) {
         row.push_back(std::nan(""));
       } else {
@@ -170,11 +180,11 @@ Run load_run(const fs::path& dir) {
                      "expected \"vcsim-metrics\" (a metrics file of vcsim version 2 or later)");
   if (!m.contains("version") || !m["version"].is_number_integer() ||
       m["version"].get<long long>() != kMetricsVersion)
-    throw InputError(src, "version",
-                     cat("expected ", std::to_string(kMetricsVersion), ", got ",
-                         m.contains("version") ? internal::describe_json(m["version"])
-                                               : std::string("none"),
-                         " (run it again with this vcsim)"));
+    throw InputError(
+        src, "version",
+        cat("expected ", std::to_string(kMetricsVersion), ", got ",
+            m.contains("version") ? internal::describe_json(m["version"]) : std::string("none"),
+            " (run it again with this vcsim)"));
   if (!m.contains("assessment") || !m["assessment"].is_object())
     throw InputError(src, "assessment", "expected the assessment section (written by vcsim run)");
   r.a = &m["assessment"];
@@ -334,9 +344,9 @@ std::string timeline_svg(const Json& a, double end, std::vector<std::string>& ro
   for (const Json& ph : a["phases"]) {
     const double x0 = X(num(ph, "start_s", 0)), x1 = X(num(ph, "end_s", end));
     s << "<rect x='" << x0 << "' y='" << Y("phase") + 3 << "' width='" << std::max(1.0, x1 - x0)
-      << "' height='" << rh - 6 << "' fill='" << (k++ % 2 ? "#9ecae1" : "#c6dbef")
-      << "'><title>" << xml_escape(str(ph, "label")) << " (" << fmt(num(ph, "start_s", 0), 1)
-      << "-" << fmt(num(ph, "end_s", end), 1) << " s)</title></rect>";
+      << "' height='" << rh - 6 << "' fill='" << (k++ % 2 ? "#9ecae1" : "#c6dbef") << "'><title>"
+      << xml_escape(str(ph, "label")) << " (" << fmt(num(ph, "start_s", 0), 1) << "-"
+      << fmt(num(ph, "end_s", end), 1) << " s)</title></rect>";
     if (x1 - x0 > 60)
       s << "<text x='" << x0 + 3 << "' y='" << Y("phase") + 15 << "' font-size='10'>"
         << xml_escape(str(ph, "label").substr(0, static_cast<std::size_t>((x1 - x0) / 6)))
@@ -348,12 +358,12 @@ std::string timeline_svg(const Json& a, double end, std::vector<std::string>& ro
   for (const Json& iv : a["intervals"]) {
     const std::string r = str(iv, "row");
     const double x0 = X(num(iv, "start_s", 0)), x1 = X(num(iv, "end_s", end));
-    std::string fill = colour.count(r) ? colour[r]
-                       : r == "fluoroscopy"        ? "#bdbdbd"
-                       : r == "cine"               ? "#636363"
-                       : r == "injection"          ? "#6baed6"
-                       : r == "inflation"          ? "#fd8d3c"
-                                                   : "#74c476";
+    std::string fill = colour.count(r)      ? colour[r]
+                       : r == "fluoroscopy" ? "#bdbdbd"
+                       : r == "cine"        ? "#636363"
+                       : r == "injection"   ? "#6baed6"
+                       : r == "inflation"   ? "#fd8d3c"
+                                            : "#74c476";
     s << "<rect x='" << x0 << "' y='" << Y(r) + 4 << "' width='" << std::max(1.0, x1 - x0)
       << "' height='" << rh - 8 << "' fill='" << fill << "'><title>" << xml_escape(r) << ' '
       << fmt(num(iv, "start_s", 0), 2) << "-" << fmt(num(iv, "end_s", end), 2)
@@ -455,10 +465,11 @@ std::string path_svg(const Run& run, const Series& series, const Series* frames,
     s << "'><title>" << xml_escape(names[k]) << "</title></polyline>";
   }
   s << "</svg>";
-  caption = image.empty() ? "no fluoroscopy frames in this run (--no-frames): the paths alone, "
-                            "in the scenario's view"
-                          : "frame " + std::to_string(frame) + " at t = " +
-                                fmt(frames->rows[static_cast<std::size_t>(frame)][1], 2) + " s";
+  caption = image.empty()
+                ? "no fluoroscopy frames in this run (--no-frames): the paths alone, "
+                  "in the scenario's view"
+                : "frame " + std::to_string(frame) +
+                      " at t = " + fmt(frames->rows[static_cast<std::size_t>(frame)][1], 2) + " s";
   return s.str();
 }
 
@@ -511,8 +522,8 @@ std::string dygraphs_js(const ReportOptions& o) {
 mu::mustache load_template(const fs::path& file) {
   mu::mustache t{slurp(file, "the report's page template (Mustache)")};
   if (!t.is_valid())
-    throw InputError(file.string(), "template", "expected a valid Mustache template: " +
-                                                    t.error_message());
+    throw InputError(file.string(), "template",
+                     "expected a valid Mustache template: " + t.error_message());
   return t;
 }
 
@@ -530,7 +541,9 @@ fs::path default_report_template() {
   return VCSIM_DEFAULT_REPORT_TEMPLATE;
 }
 
-std::string read_run_metrics(const fs::path& run_dir) { return load_run(run_dir).metrics.dump(); }
+std::string read_run_metrics(const fs::path& run_dir) {
+  return load_run(run_dir).metrics.dump();
+}
 
 fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const ReportOptions& o) {
   const Run run = load_run(run_dir);
@@ -564,8 +577,11 @@ fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const Re
   for (const Reference& r : load_references()) {
     if (!sum.contains(r.key)) continue;
     const Json& v = sum[r.key];
-    mu::object row{{"label", r.label}, {"unit", r.unit}, {"value", value_text(v, r.decimals)},
-                   {"range", range_text(r)}, {"source", r.source}};
+    mu::object row{{"label", r.label},
+                   {"unit", r.unit},
+                   {"value", value_text(v, r.decimals)},
+                   {"range", range_text(r)},
+                   {"source", r.source}};
     row["status"] = status_of(v, r);
     rows.push_back(row);
   }
@@ -634,10 +650,10 @@ fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const Re
       const int k = frame_at(*frames, p.time);
       const fs::path f = frame_file(run_dir, k);
       if (k < 0 || !fs::exists(f)) continue;
-      frame_list.push_back(mu::object{
-          {"caption", p.caption},
-          {"time", fmt(frames->rows[static_cast<std::size_t>(k)][1], 2)},
-          {"src", "data:image/png;base64," + base64(slurp(f, "a frame"))}});
+      frame_list.push_back(
+          mu::object{{"caption", p.caption},
+                     {"time", fmt(frames->rows[static_cast<std::size_t>(k)][1], 2)},
+                     {"src", "data:image/png;base64," + base64(slurp(f, "a frame"))}});
     }
     // The angiogram under the tip path: after treatment, else the last injection, else last.
     double t = after >= 0 ? after : -1;
@@ -666,11 +682,11 @@ fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const Re
     depth.push_back({nm + "_depth_mm", nm});
   }
   Json plots = Json::array();
+  plots.push_back(plot(series, "Hand force per instrument (N, the largest in each 50 ms)", "N",
+                       force, {}, true));
   plots.push_back(
-      plot(series, "Hand force per instrument (N, the largest in each 50 ms)", "N", force, {}, true));
-  plots.push_back(plot(series, "Tip contact force on the vessel wall (N, low-passed) and thresholds",
-                       "N", wall, {{"catheter threshold", cath}, {"coronary wire threshold", wire}},
-                       true));
+      plot(series, "Tip contact force on the vessel wall (N, low-passed) and thresholds", "N", wall,
+           {{"catheter threshold", cath}, {"coronary wire threshold", wire}}, true));
   plots.push_back(plot(series, "Insertion depth (mm)", "mm", depth, {}, true));
   plots.push_back(plot(series, "Contrast: syringe flow and volume injected", "ml/s, ml",
                        {{"syringe_flow_ml_s", "flow (ml/s)"}, {"contrast_ml", "volume (ml)"}}));
@@ -681,7 +697,8 @@ fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const Re
   const Json& dose = a["dose"];
   d.set("dose_model",
         cat("reference air kerma = ", fmt(num(a["settings"], "fluoro_kerma_rate_mgy_min", 0), 1),
-            " mGy/min x fluoroscopy time + ", fmt(num(a["settings"], "cine_kerma_per_frame_mgy", 0), 2),
+            " mGy/min x fluoroscopy time + ",
+            fmt(num(a["settings"], "cine_kerma_per_frame_mgy", 0), 2),
             " mGy x cine frames; kerma-area product = air kerma x ",
             fmt(num(dose, "field_area_cm2", 0), 0), " cm2 (the field at the reference point)"));
 
@@ -755,12 +772,13 @@ void write_compare_report(std::span<const fs::path> run_dirs, const fs::path& ou
     for (std::size_t k = 0; k < runs.size(); ++k) {
       const Json& s = (*runs[k].a)["summary"];
       const Json v = s.contains(r.key) ? s[r.key] : Json(nullptr);
-      cells.push_back(mu::object{{"value", value_text(v, r.decimals)}, {"status", status_of(v, r)}});
+      cells.push_back(
+          mu::object{{"value", value_text(v, r.decimals)}, {"status", status_of(v, r)}});
       data.push_back({static_cast<double>(k + 1), v.is_number() ? v : Json(nullptr)});
       any = any || v.is_number();
     }
-    rows.push_back(mu::object{{"label", r.label}, {"unit", r.unit}, {"range", range_text(r)},
-                              {"cells", cells}});
+    rows.push_back(mu::object{
+        {"label", r.label}, {"unit", r.unit}, {"range", range_text(r)}, {"cells", cells}});
     if (any)
       plots.push_back({{"title", r.label + (r.unit.empty() ? "" : " (" + r.unit + ")")},
                        {"ylabel", r.unit},

@@ -98,7 +98,8 @@ void DurationHistogram::add(double us) {
 
 double DurationHistogram::quantile(double q) const {
   if (count_ == 0) return 0.0;
-  const auto want = static_cast<std::int64_t>(std::ceil(std::clamp(q, 0.0, 1.0) * static_cast<double>(count_)));
+  const auto want =
+      static_cast<std::int64_t>(std::ceil(std::clamp(q, 0.0, 1.0) * static_cast<double>(count_)));
   std::int64_t seen = 0;
   for (int b = 0; b < kBins; ++b) {
     seen += bins_[static_cast<std::size_t>(b)];

@@ -369,7 +369,8 @@ InstrumentSpec parse_instrument(std::string_view json_text, const std::string& s
     if (s.taper_length > s.length) f.fail("tip_taper_mm", "expected at most length_mm");
     s.entry_profile = one_of(f, {{"tip_entry_profile_in", kInch}, {"tip_entry_profile_mm", kMm}},
                              true, 0.0, 10.0e-3);
-    const char* key = f.has("tip_entry_profile_in") ? "tip_entry_profile_in" : "tip_entry_profile_mm";
+    const char* key =
+        f.has("tip_entry_profile_in") ? "tip_entry_profile_in" : "tip_entry_profile_mm";
     if (!(s.entry_profile > s.inner_diameter && s.entry_profile <= s.outer_diameter)) {
       f.fail(key, "expected more than the inner diameter and at most the outer diameter");
     }

@@ -11,11 +11,11 @@ namespace vcsim {
 
 namespace {
 
-constexpr double kCone = 1.0e-3;          // m: a balloon's cone, from the shaft to its full radius
-constexpr double kLocateWindow = 25e-3;   // m of arc length searched around the last location
-constexpr double kDeflated = 1.0 * kAtm;  // Pa: below it a balloon lets its stent go
-constexpr double kGrip = 0.95;            // a balloon this close to a stent's radius grips it
-constexpr double kOverExpansion = 1.2;    // free diameter over reference diameter: an event
+constexpr double kCone = 1.0e-3;           // m: a balloon's cone, from the shaft to its full radius
+constexpr double kLocateWindow = 25e-3;    // m of arc length searched around the last location
+constexpr double kDeflated = 1.0 * kAtm;   // Pa: below it a balloon lets its stent go
+constexpr double kGrip = 0.95;             // a balloon this close to a stent's radius grips it
+constexpr double kOverExpansion = 1.2;     // free diameter over reference diameter: an event
 constexpr double kCrossingReach = 0.5e-3;  // m either side of a node a crossing widens
 constexpr double kCrossingReachRadius = 2.0;  // the lumen a crossing makes, in its radii
 
@@ -329,9 +329,10 @@ void cross_lesions(const ProcedureModel& m, const SolverModel& sm, const VesselT
                                     node > 0 ? md.outer_radius[node - 1] : 0.0);
         const double now = lumen_radius_now(m, tree, ps, les.segment, s);
         if (now >= kCrossingReachRadius * own) continue;
-        const double r = std::min(now + lm.mechanics.crossing_rate * dt, kCrossingReachRadius * own);
-        const double t = std::min(ProcedureModel::kMaxOpening,
-                                  opening_for_radius(tree, les, lm.span, s, r));
+        const double r =
+            std::min(now + lm.mechanics.crossing_rate * dt, kCrossingReachRadius * own);
+        const double t =
+            std::min(ProcedureModel::kMaxOpening, opening_for_radius(tree, les, lm.span, s, r));
         // The node's neighbourhood (its sphere's length along the vessel) widens with it.
         std::vector<double>& cr = ps.crossed[k].t;
         const auto n = static_cast<double>(cr.size() - 1);
@@ -491,7 +492,8 @@ void procedure_fit(const ProcedureModel& m, const SolverModel& sm, const VesselT
       // The lumen's radius there on the wall itself: the nearest wall point from the axis
       // (iterative collision detection, VCSim3's fit, by exact queries), measured again when
       // the node has moved on along the vessel, the wall changed shape or kRefit has passed.
-      const bool fresh = st.lumen_epoch == ps.wall_epoch && t1 - st.lumen_time < BalloonState::kRefit &&
+      const bool fresh = st.lumen_epoch == ps.wall_epoch &&
+                         t1 - st.lumen_time < BalloonState::kRefit &&
                          std::abs(arc - st.lumen_s[e]) < BalloonState::kRefitMove;
       if (!fresh) {
         st.lumen[e] = fit_lumen(wall, axis, free, sec.radius);

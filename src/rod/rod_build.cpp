@@ -81,7 +81,8 @@ void RodDef::validate(const std::string& source) const {
   require_in_range(tip_modulus_ratio, 0.0, 1.0, source, "tip_modulus_ratio");
   require_nonnegative(taper_length, source, "taper_length");
   if (taper_length > length) throw InputError(source, "taper_length", "expected at most length");
-  if (taper_length > 0.0 && !(taper_outer_radius > inner_radius && taper_outer_radius <= outer_radius)) {
+  if (taper_length > 0.0 &&
+      !(taper_outer_radius > inner_radius && taper_outer_radius <= outer_radius)) {
     throw InputError(source, "taper_outer_radius",
                      "expected more than inner_radius and at most outer_radius");
   }

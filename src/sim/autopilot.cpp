@@ -15,14 +15,14 @@ namespace vcsim {
 
 namespace {
 
-constexpr double kSpacing = 1e-3;       // m between route points
-constexpr double kProgressStep = 1e-3;  // m of progress that counts as moving on
+constexpr double kSpacing = 1e-3;         // m between route points
+constexpr double kProgressStep = 1e-3;    // m of progress that counts as moving on
 constexpr double kPlaceApproach = 70e-3;  // m of route before a lesion: out of the guide (place)
 constexpr double kPlacedTime = 0.5;       // s within tolerance before a place is done
 constexpr double kPlaceBeyond = 20e-3;    // m the place route runs on past the lesion's middle
 constexpr double kPositionCheck = 4.0 * kAtm;  // Pa: markers watched while inflating below it
 constexpr double kNudgeSpeed = 2e-3;           // m/s: the hand's correction then
-constexpr double kLookAhead = 12e-3;    // m along the route the tip is aimed at
+constexpr double kLookAhead = 12e-3;           // m along the route the tip is aimed at
 constexpr double kBranchAhead = 40e-3;
 constexpr double kHoldLost = 1.5;       // s out of reach before a held tip counts as fallen out
 constexpr double kHoldReach = 8e-3;     // m: a held tip farther than this from its route is lost
@@ -365,8 +365,8 @@ void Autopilot::place(const SimModel& md, const SimState& st, const AutopilotPha
   // may lag).
   const double v = std::clamp(std::abs(remaining) / 10e-3, 0.2, 1.0) *
                    (std::abs(remaining) > kPlaceApproach ? ph.speed : ph.approach_speed);
-  depth_[L] = std::clamp(depth_[L] + std::clamp(remaining, -v * dt, v * dt), depth - 0.005,
-                         depth + 0.005);
+  depth_[L] =
+      std::clamp(depth_[L] + std::clamp(remaining, -v * dt, v * dt), depth - 0.005, depth + 0.005);
 }
 
 void Autopilot::command(const SimModel& md, const SimState& st, StepCommands& out) {

@@ -372,23 +372,40 @@ void sim_step(const SimModel& md, SimState& st, SimWorkspace& ws, const StepComm
 
 const char* to_string(SimStage s) {
   switch (s) {
-    case SimStage::kProcedure: return "procedure";
-    case SimStage::kWall: return "wall";
-    case SimStage::kDrive: return "drive";
-    case SimStage::kForces: return "forces";
-    case SimStage::kVelocities: return "velocities";
-    case SimStage::kCollision: return "collision";
-    case SimStage::kCoupling: return "coupling";
-    case SimStage::kDistance: return "distance";
-    case SimStage::kContacts: return "contacts";
-    case SimStage::kPositions: return "positions";
-    case SimStage::kFeedback: return "feedback";
-    case SimStage::kSubsteps: return "substeps";
-    case SimStage::kContrast: return "contrast";
-    case SimStage::kMetrics: return "metrics";
-    case SimStage::kLandmarks: return "landmarks";
-    case SimStage::kTotal: return "total";
-    case SimStage::kCount: break;
+    case SimStage::kProcedure:
+      return "procedure";
+    case SimStage::kWall:
+      return "wall";
+    case SimStage::kDrive:
+      return "drive";
+    case SimStage::kForces:
+      return "forces";
+    case SimStage::kVelocities:
+      return "velocities";
+    case SimStage::kCollision:
+      return "collision";
+    case SimStage::kCoupling:
+      return "coupling";
+    case SimStage::kDistance:
+      return "distance";
+    case SimStage::kContacts:
+      return "contacts";
+    case SimStage::kPositions:
+      return "positions";
+    case SimStage::kFeedback:
+      return "feedback";
+    case SimStage::kSubsteps:
+      return "substeps";
+    case SimStage::kContrast:
+      return "contrast";
+    case SimStage::kMetrics:
+      return "metrics";
+    case SimStage::kLandmarks:
+      return "landmarks";
+    case SimStage::kTotal:
+      return "total";
+    case SimStage::kCount:
+      break;
   }
   return "?";
 }
@@ -468,7 +485,8 @@ void Simulator::step(const StepCommands& cmds) {
   sum.landmarks += p.landmarks;
   sum.total += p.total;
   const std::array<double, kNumSimStages> st = stage_times(p);
-  for (int k = 0; k < kNumSimStages; ++k) profile_.stages[static_cast<std::size_t>(k)].add(st[static_cast<std::size_t>(k)]);
+  for (int k = 0; k < kNumSimStages; ++k)
+    profile_.stages[static_cast<std::size_t>(k)].add(st[static_cast<std::size_t>(k)]);
   StepProfile& a = sum.instruments;
   const StepProfile& b = p.instruments;
   a.drive += b.drive;

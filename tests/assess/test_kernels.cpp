@@ -52,7 +52,10 @@ TEST(ForceEvents, OnePushAboveTheThresholdIsOneEventAndBelowItNone) {
     double t = 0.0;
     for (int k = 0; k < 1000; ++k) {
       t += dt;
-      const double f = t < 0.2 ? peak * t / 0.2 : t < 0.5 ? peak : t < 0.7 ? peak * (0.7 - t) / 0.2 : 0.0;
+      const double f = t < 0.2   ? peak * t / 0.2
+                       : t < 0.5 ? peak
+                       : t < 0.7 ? peak * (0.7 - t) / 0.2
+                                 : 0.0;
       ev.step(t, f, threshold, gap);
     }
     ev.close();
@@ -75,7 +78,8 @@ TEST(ForceEvents, DipsShorterThanTheGapDoNotSplitAnEvent) {
   const double dt = 1e-3;
   // Above for 0.1 s, below for 0.02 s (< gap), above 0.1 s, below 0.2 s (> gap), above 0.1 s.
   auto hold = [&](double f, double dur) {
-    for (int k = 0; k < static_cast<int>(std::lround(dur / dt)); ++k) ev.step(t += dt, f, 1.0, 0.05);
+    for (int k = 0; k < static_cast<int>(std::lround(dur / dt)); ++k)
+      ev.step(t += dt, f, 1.0, 0.05);
   };
   hold(2.0, 0.1);
   hold(0.0, 0.02);

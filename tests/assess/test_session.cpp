@@ -102,8 +102,8 @@ TEST(Session, PedalsSyringeAndExchangesGiveTheirKnownFigures) {
     EXPECT_NEAR(inj["volume_ml"].get<double>(), 8.0, 8 * dt);
   EXPECT_NEAR(a["contrast"]["injections"][1]["start_s"].get<double>(), 4.0, 2 * dt);
   // The assessment's volume is the simulator's.
-  EXPECT_NEAR(a["contrast"]["volume_ml"].get<double>(), s.metrics["contrast_volume_ml"].get<double>(),
-              1e-9);
+  EXPECT_NEAR(a["contrast"]["volume_ml"].get<double>(),
+              s.metrics["contrast_volume_ml"].get<double>(), 1e-9);
   // The timeline's rows: fluoroscopy 0.5-12.5 s, then cine 12.5-14.5 s.
   std::vector<std::pair<double, double>> fluoro, cine;
   for (const Json& iv : a["intervals"]) {
@@ -141,7 +141,6 @@ TEST(Session, PedalsSyringeAndExchangesGiveTheirKnownFigures) {
   EXPECT_NEAR(rows, 300, 2);
   EXPECT_NEAR(cine_rows, 40, 2);
 }
-
 
 TEST(Session, ACopiedAssessmentRewindsWithTheState) {
   // As the trainer rewinds: the state and the assessment copied at 6 s, the run taken on to
@@ -228,10 +227,9 @@ TEST(Session, AStraightWireIntoAWrongBranchAndAcrossItsLesionAtKnownTimes) {
   EXPECT_EQ(a["lesions"][0]["crossed_by"], "wire");
   EXPECT_NEAR(a["lesions"][0]["crossed_at_s"].get<double>(), t_cross, 1e-3 / v + 0.01);
   // In a coronary from its first millimetre: time to cross counts from there.
-  EXPECT_NEAR(a["lesions"][0]["time_to_cross_s"].get<double>(),
-              a["lesions"][0]["crossed_at_s"].get<double>() -
-                  w["first_in_coronary_s"].get<double>(),
-              1e-9);
+  EXPECT_NEAR(
+      a["lesions"][0]["time_to_cross_s"].get<double>(),
+      a["lesions"][0]["crossed_at_s"].get<double>() - w["first_in_coronary_s"].get<double>(), 1e-9);
   EXPECT_EQ(w["insertions"], 1);
   // A straight wire running straight never folds back.
   EXPECT_EQ(w["prolapses"], 0);

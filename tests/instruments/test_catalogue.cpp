@@ -388,11 +388,9 @@ TEST(CatalogueErrors, BalloonAndStentNameFileAndField) {
          j["stent"]["crimped_profile_mm"] = 3.2;
        },
        "stent.crimped_profile_mm", "less than nominal_diameter_mm"},
-      {"entry profile without a taper",
-       [](json& j) { j["tip_entry_profile_in"] = 0.018; },
+      {"entry profile without a taper", [](json& j) { j["tip_entry_profile_in"] = 0.018; },
        "tip_taper_mm", "expected with a tip entry profile"},
-      {"taper without an entry profile",
-       [](json& j) { j["tip_taper_mm"] = 3; },
+      {"taper without an entry profile", [](json& j) { j["tip_taper_mm"] = 3; },
        "tip_entry_profile_in, tip_entry_profile_mm", "expected one of these keys"},
       {"entry profile inside the lumen",
        [](json& j) {

@@ -304,9 +304,9 @@ TEST(Stent, IsAWallThatMovesWithTheBeatingVessel) {
   wall.set_time(sim.time());
   int inside = 0, left_behind = 0;
   for (std::size_t k = 2; k + 2 < rings; ++k) {
-    const Vec3 rest = lumen_section(md.tree, md.procedure.spans, s.procedure.opening, lad,
-                                    stent.ring_s[k])
-                          .centre;
+    const Vec3 rest =
+        lumen_section(md.tree, md.procedure.spans, s.procedure.opening, lad, stent.ring_s[k])
+            .centre;
     const Vec3 moved = rest + motion.displacement(rest, sim.time());
     const Vec3 u = tangent_at(md.tree.segments[lad], stent.ring_s[k]).unitOrthogonal();
     // A 0.2 mm node 1.1 mm off the moved axis touches the stent (1.2 mm) from inside.

@@ -160,9 +160,9 @@ TEST(Scenario, BadInputNamesTheField) {
   expect_error(
       edit("\"name\": \"t\"", "\"name\": \"t\", \"lesions\": [{\"crossing_force_n\": -1}]"),
       "lesions[0].crossing_force_n");
-  expect_error(edit("\"name\": \"t\"",
-                    "\"name\": \"t\", \"targets\": {\"residual_stenosis_percent\": 120}"),
-               "targets.residual_stenosis_percent");
+  expect_error(
+      edit("\"name\": \"t\"", "\"name\": \"t\", \"targets\": {\"residual_stenosis_percent\": 120}"),
+      "targets.residual_stenosis_percent");
   expect_error(edit("\"name\": \"wire\", ", "\"name\": \"wire\", \"over\": \"nothing\", "),
                "instruments[0].over");
   // Instrument exchange in the plan: an add declares an instrument as instruments[] does; phases

@@ -422,6 +422,19 @@ int wait_for_port(CliProcess& p, const fs::path& err) {
   return 0;
 }
 
+// The port of a session's device once its physics is ready, 0 if it never listened. The server
+// listens before the window opens and the physics starts once it is ready (a slow machine takes
+// a while): commands sent before would be overtaken by a disconnect's.
+int wait_until_ready(CliProcess& p, const fs::path& err) {
+  const int port = wait_for_port(p, err);
+  if (port <= 0) return 0;
+  const auto ready_by = std::chrono::steady_clock::now() + 120s;
+  while (slurp(err).find(" ready in ") == std::string::npos && !p.exited() &&
+         std::chrono::steady_clock::now() < ready_by)
+    std::this_thread::sleep_for(20ms);
+  return port;
+}
+
 TEST(TrainerApp, ADeviceConnectsDropsAndReconnectsBesideTheKeyboard) {
   const Scratch scratch_dir("device");
   const fs::path& d = scratch_dir.d;
@@ -433,14 +446,8 @@ TEST(TrainerApp, ADeviceConnectsDropsAndReconnectsBesideTheKeyboard) {
                 "igtl", "--port", "0"},
                d / "out.txt", d / "err.txt");
   ASSERT_TRUE(p.started());
-  const int port = wait_for_port(p, d / "err.txt");
+  const int port = wait_until_ready(p, d / "err.txt");
   ASSERT_GT(port, 0) << slurp(d / "err.txt");
-  // The server listens before the window opens; the physics starts once it is ready (a slow
-  // machine takes a while): commands sent before would be overtaken by the disconnect's.
-  const auto ready_by = std::chrono::steady_clock::now() + 120s;
-  while (slurp(d / "err.txt").find(" ready in ") == std::string::npos && !p.exited() &&
-         std::chrono::steady_clock::now() < ready_by)
-    std::this_thread::sleep_for(20ms);
   {
     IgtlClient c;
     ASSERT_TRUE(c.connect(port, 10000ms));
@@ -484,18 +491,15 @@ TEST(TrainerApp, ADeviceExchangesInstrumentsAndTheSessionReplays) {
                 "igtl", "--port", "0"},
                d / "out.txt", d / "err.txt");
   ASSERT_TRUE(p.started());
-  const int port = wait_for_port(p, d / "err.txt");
+  const int port = wait_until_ready(p, d / "err.txt");
   ASSERT_GT(port, 0) << slurp(d / "err.txt");
-  const auto ready_by = std::chrono::steady_clock::now() + 120s;
-  while (slurp(d / "err.txt").find(" ready in ") == std::string::npos && !p.exited() &&
-         std::chrono::steady_clock::now() < ready_by)
-    std::this_thread::sleep_for(20ms);
   {
     IgtlClient c;
     ASSERT_TRUE(c.connect(port, 10000ms));
     std::string reply;
-    ASSERT_TRUE(c.send_string("exchange", "add predil balloon-sc-2.5x15 inside=catheter "
-                                          "over=coronary_wire"));
+    ASSERT_TRUE(c.send_string("exchange",
+                              "add predil balloon-sc-2.5x15 inside=catheter "
+                              "over=coronary_wire"));
     ASSERT_TRUE(c.read_string("exchange", reply, 20000ms));
     EXPECT_EQ(reply.rfind("done: add predil", 0), 0u) << reply;
     ASSERT_TRUE(c.send_sensor("vel_predil", {0.0, 0.0}));  // the new instrument, by name
