@@ -156,9 +156,15 @@ FrameSnapshot snapshot(const SimModel& md, const SimState& st) {
   for (std::size_t b = 0; b < pm.balloons.size(); ++b) {
     const BalloonModel& bm = pm.balloons[b];
     const BalloonState& bs = ps.balloons[b];
-    const InstrumentState& in = st.solver.instruments[bm.instrument];
-    const bool inside = !in.parked && in.drive.depth > 1e-3 && bm.first >= in.drive.first_free;
-    const std::span<const Vec3> x(in.rod.x.data() + bm.first, static_cast<std::size_t>(bm.nodes()));
+    // A balloon whose catheter an exchange removed keeps its index (and a deployed stent) but has
+    // no rod to be drawn on.
+    const InstrumentState* in = bm.removed() ? nullptr : &st.solver.instruments[bm.instrument];
+    const bool inside =
+        in && !in->parked && in->drive.depth > 1e-3 && bm.first >= in->drive.first_free;
+    const std::span<const Vec3> x =
+        inside ? std::span<const Vec3>(in->rod.x.data() + bm.first,
+                                       static_cast<std::size_t>(bm.nodes()))
+               : std::span<const Vec3>();
     BalloonFrame bf;
     bf.instrument = bm.instrument;
     bf.pressure = bs.pressure;

@@ -230,6 +230,35 @@ double to_polyline(const std::vector<Vec3>& x, const Vec3& p) {
   return best;
 }
 
+// A balloon catheter added and removed again (an exchange): its balloon keeps its index in the
+// procedure, and a frame copies it without a rod to draw it on (the trainer published such a
+// frame after a device removed one: it read past the scene's instruments).
+TEST(Snapshot, ARemovedBalloonIsCopiedWithoutNodes) {
+  test::TubeSpecs t;
+  const fs::path dir = scratch("removed");
+  Simulator sim(test::tube_scenario(
+      dir, t,
+      R"([{"name": "wire", "catalogue": "wire-014-floppy", "max_nodes": 160, "tip_segment_mm": 1}])"));
+  fs::remove_all(dir);
+  InstrumentChange c;
+  c.kind = InstrumentChange::Kind::kAdd;
+  c.name = "balloon";
+  c.catalogue = "balloon-sc-3.0x15";
+  c.over = "wire";
+  c.max_nodes = 200;
+  c.source = "test";
+  sim.exchange(c);
+  c.kind = InstrumentChange::Kind::kRemove;
+  sim.exchange(c);
+  ASSERT_EQ(sim.num_instruments(), 1);
+  ASSERT_EQ(sim.model().procedure.balloons.size(), 1u);
+  ASSERT_TRUE(sim.model().procedure.balloons[0].removed());
+  const FrameSnapshot f = snapshot(sim);
+  ASSERT_EQ(f.balloons.size(), 1u);
+  EXPECT_TRUE(f.balloons[0].nodes.empty());
+  EXPECT_EQ(f.nodes.size(), 1u);
+}
+
 // A frame copies what it needs of the procedure: the balloon's nodes, radii and pressure, the
 // stent crimped on the balloon then deployed at its rings on the vessel's axis, the openings.
 TEST(Snapshot, CopiesTheBalloonTheStentAndTheLesionsOpening) {
