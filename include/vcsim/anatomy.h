@@ -125,6 +125,29 @@ VesselTree default_patient(PatientVariant variant = PatientVariant::kRightDomina
 // "default" / "right-dominant", "left-dominant"; throws InputError for other names.
 PatientVariant patient_variant_from_string(const std::string& name, const std::string& source);
 
+// Variations of a built-in patient for domain randomisation (docs/anatomy.md, "Variations").
+struct AnatomyVariation {
+  double aorta_radius_scale = 1.0;     // aorta and sinuses' radii times this, 0.5..1.5
+  double artery_radius_scale = 1.0;    // other arteries' (branches, iliacs), 0.5..1.5
+  double coronary_radius_scale = 1.0;  // coronaries', 0.7..1.3
+  // m (0..40 mm): the ascending aorta and arch lengthened upward, the arch top rising by this
+  // (an elongated arch, as with age and in type II/III arches); the branches move with it.
+  double arch_elongation = 0.0;
+  // m (0..8 mm): rms amplitude of a smooth random displacement field bending every centreline,
+  // with wavelengths 0.75..1.5 times tortuosity_wavelength (40..400 mm).
+  double tortuosity = 0.0;
+  double tortuosity_wavelength = 80e-3;
+  std::uint64_t seed = 1;  // of the displacement field
+  void validate(const std::string& source) const;  // InputError naming the field
+};
+// The tree varied: calibre always; shape (elongation, tortuosity) only for a tree without a heart
+// (InputError otherwise: coronaries ride on the heart). The access and target keep their arc length.
+VesselTree vary_anatomy(const VesselTree& tree, const AnatomyVariation& variation);
+// The aortic-arch navigation anatomy: the built-in patient's aorta from the valve to the
+// diaphragm with its sinuses and the three supra-aortic branches (no heart, no coronaries), the
+// access in the descending thoracic aorta 60 % down its length.
+VesselTree arch_anatomy(PatientVariant variant = PatientVariant::kRightDominant);
+
 // The tree with each lesion's residual lumen on the centreline: points are resampled at
 // `spacing` inside lesions, radii reduced and centres shifted as the lesion mesh is.
 VesselTree stenosed_tree(const VesselTree& tree, double spacing = 0.25e-3);

@@ -272,6 +272,9 @@ struct SimModel {
 // Builds the anatomy (cached lumen), the wall and the instruments at the sheath. Throws
 // InputError for a scenario that does not fit the anatomy or the catalogue.
 std::shared_ptr<const SimModel> build_sim_model(Scenario scenario);
+// The same in an anatomy given instead of the scenario's (a varied patient: vary_anatomy); the
+// tree is checked (validate_tree) and scenario.anatomy only names it.
+std::shared_ptr<const SimModel> build_sim_model(Scenario scenario, VesselTree tree);
 // The model of `from`'s scene with another list of instruments (an exchange; docs/architecture.md
 // "Instrument exchange"): the anatomy shared, the lesions and the introducer sheath kept (its
 // lumen widened only for a wider instrument), the instruments built as build_sim_model builds

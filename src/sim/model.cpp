@@ -177,11 +177,17 @@ SimModel::SimModel(std::shared_ptr<const SimAnatomy> a)
       static_tree(anatomy->static_tree) {}
 
 std::shared_ptr<const SimModel> build_sim_model(Scenario scenario) {
+  VesselTree tree = load_anatomy(scenario);
+  return build_sim_model(std::move(scenario), std::move(tree));
+}
+
+std::shared_ptr<const SimModel> build_sim_model(Scenario scenario, VesselTree given) {
   const Scenario& sc = scenario;
   const std::string& src = sc.source;
+  validate_tree(given, src + ": anatomy");
   auto anatomy = std::make_shared<SimAnatomy>();
   VesselTree& tree = anatomy->tree;
-  tree = load_anatomy(sc);
+  tree = std::move(given);
   // Check every name before the expensive build.
   const std::vector<std::string> added = internal::plan_additions(sc);
   for (std::size_t i = 0; i < sc.landmarks.size(); ++i) {

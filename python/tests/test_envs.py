@@ -1,0 +1,176 @@
+"""The learning environments: Gymnasium's conventions, determinism, the vector environment
+against sequential stepping, the autopilot baseline reaching a target, clear errors."""
+import numpy as np
+import pytest
+
+import vcsim
+from vcsim import envs
+
+
+def assert_obs_equal(a, b):
+    assert set(a) == set(b)
+    for k in a:
+        assert np.array_equal(a[k], b[k]), k
+
+
+def rollout(env, seed, steps, action_seed=0):
+    rng = np.random.default_rng(action_seed)
+    obs, info = env.reset(seed=seed)
+    traj = [obs]
+    for _ in range(steps):
+        obs, r, term, trunc, info = env.step(
+            rng.uniform(env.action_space.low, env.action_space.high).astype(np.float32))
+        traj.append(obs)
+        if term or trunc:
+            break
+    return traj, env.sim.state_hash
+
+
+def test_conventions_of_the_arch_environment():
+    env = envs.ArchNavigation()  # every environment builds with no arguments
+    obs, info = env.reset(seed=3)
+    assert isinstance(info, dict) and obs in env.observation_space
+    assert env.observation_space["tracking"].shape == (1, 3, 2)
+    assert env.action_space.shape == (1, 2)
+    a = env.action_space.sample()
+    out = env.step(a)
+    assert len(out) == 5
+    obs, reward, terminated, truncated, info = out
+    assert obs in env.observation_space
+    assert isinstance(reward, float) and isinstance(terminated, bool)
+    assert isinstance(truncated, bool)
+    # One control step at 7.5 Hz.
+    assert env.control_steps * env.sim.dt == pytest.approx(1 / 7.5, rel=0.01)
+    assert info["target"][0] in envs.ArchNavigation.TARGETS
+    assert env.render() is None  # no render_mode
+    env.close()
+
+
+def test_the_gymnasium_checker_passes_where_gymnasium_is_installed():
+    gym = pytest.importorskip("gymnasium")
+    from gymnasium.utils.env_checker import check_env
+    assert isinstance(envs.ArchNavigation(), gym.Env)
+    check_env(envs.ArchNavigation(), skip_render_check=True)
+
+
+def test_the_same_seed_gives_the_same_episode():
+    t1, h1 = rollout(envs.ArchNavigation(), seed=11, steps=15)
+    t2, h2 = rollout(envs.ArchNavigation(), seed=11, steps=15)
+    assert h1 == h2 and len(t1) == len(t2)
+    for a, b in zip(t1, t2):
+        assert_obs_equal(a, b)
+    # Another seed draws another episode.
+    env = envs.ArchNavigation()
+    _, i1 = env.reset(seed=11)
+    _, i2 = env.reset(seed=12)
+    assert i1["episode"] != i2["episode"]
+
+
+def test_a_reset_to_a_cached_start_is_the_start():
+    env = envs.ArchNavigation(randomize=False)
+    obs0, _ = env.reset(seed=0)
+    h0 = env.sim.state_hash
+    for _ in range(5):
+        env.step(np.array([[0.05, 1.0]], dtype=np.float32))
+    assert env.sim.state_hash != h0
+    obs1, _ = env.reset(seed=1)  # no randomisation: the same episode, from the cache
+    assert env.sim.state_hash == h0
+    assert_obs_equal(obs0, obs1)
+
+
+def test_bad_actions_and_options_raise():
+    env = envs.ArchNavigation(randomize=False)
+    env.reset()
+    with pytest.raises(ValueError, match=r"action: expected shape \(1, 2\)"):
+        env.step(np.zeros(2))
+    with pytest.raises(ValueError, match="action: expected finite values"):
+        env.step(np.array([[np.nan, 0.0]]))
+    with pytest.raises(ValueError, match="observation: expected"):
+        envs.ArchNavigation(observation="pixels")
+    with pytest.raises(ValueError, match="targets: expected names among"):
+        envs.ArchNavigation(targets=("lad",))
+    with pytest.raises(ValueError, match="control_hz"):
+        envs.ArchNavigation(control_hz=0)
+
+
+def test_tracking_points_follow_the_wire_and_the_target_is_projected():
+    env = envs.ArchNavigation(randomize=False, observation="tracking3d", tracking_points=4)
+    obs, info = env.reset(seed=0)
+    iso = env._carm.isocentre
+    tip = env.sim.tips()[0]
+    assert np.allclose(obs["tracking"][0, 0], tip - iso, atol=1e-6)
+    # Points tracking_spacing apart along the wire.
+    d = np.linalg.norm(np.diff(obs["tracking"][0], axis=0), axis=1)
+    assert np.all(d <= env.tracking_spacing + 1e-6) and np.all(d > 0.5 * env.tracking_spacing)
+    assert np.allclose(obs["target"], info["target_point"] - iso, atol=1e-6)
+
+
+def test_the_autopilot_baseline_reaches_a_target_and_is_rewarded():
+    env = envs.ArchNavigation(randomize=False)
+    obs, info = env.reset(seed=0)
+    policy = env.autopilot()
+    start = info["path_length"]
+    total, done, steps = 0.0, False, 0
+    while not done:
+        obs, r, term, trunc, info = env.step(policy(obs))
+        assert obs in env.observation_space
+        total += r
+        steps += 1
+        done = term or trunc
+    assert term and info["success"] and not trunc
+    # Within 5 mm of the target along the vessel, and near it in space (a wire lies on the
+    # wall, up to a radius off the centreline).
+    assert info["path_length"] <= env.target_tolerance
+    seg, dist, outside = env.sim.tip_location(0)
+    assert seg == info["target"][0] and outside < 1e-3
+    assert np.linalg.norm(env.sim.tip_rest(0) - info["target_point"]) < 0.012
+    # stEVE's terms: +1 at the target, -0.005 a step, +0.001 per mm of path gained.
+    expect = 1.0 - 0.005 * steps + 0.001 * (start - info["path_length"]) * 1e3
+    assert total == pytest.approx(expect, abs=1e-6)
+
+
+def test_image_observations():
+    env = envs.ArchNavigation(randomize=False, observation="image", image_size=64,
+                              render_mode="rgb_array")
+    obs, _ = env.reset(seed=0)
+    assert obs["image"].shape == (64, 64) and obs["image"].dtype == np.uint8
+    assert obs in env.observation_space
+    assert obs["image"].std() > 5  # an image, not a blank
+    frame = env.render()
+    assert frame.shape == (64, 64, 3) and frame.dtype == np.uint8
+
+
+def test_the_vector_environment_equals_stepping_one_by_one():
+    rng = np.random.default_rng(4)
+    acts = rng.uniform(-1, 1, size=(12, 2, 1, 2)) * np.array([0.05, np.pi])
+    vec = envs.ThreadVectorEnv(envs.ArchNavigation, 2)
+    vobs, _ = vec.reset(seed=20)
+    vtraj = [vobs]
+    for a in acts:
+        vobs, r, term, trunc, _ = vec.step(a.astype(np.float32))
+        vtraj.append(vobs)
+    hashes = [e.sim.state_hash for e in vec.envs]
+    vec.close()
+    for i in range(2):
+        env = envs.ArchNavigation()
+        obs, _ = env.reset(seed=20 + i)
+        assert_obs_equal(obs, {k: v[i] for k, v in vtraj[0].items()})
+        for k, a in enumerate(acts):
+            obs, *_ = env.step(a[i].astype(np.float32))
+            assert_obs_equal(obs, {kk: v[i] for kk, v in vtraj[k + 1].items()})
+        assert env.sim.state_hash == hashes[i]
+
+
+def test_the_coronary_environment_starts_engaged_in_the_beating_heart():
+    env = envs.CoronaryNavigation(randomize=False)
+    obs, info = env.reset(seed=0)
+    assert env.sim.instrument_names == ["guide", "wire"]
+    assert env.action_space.shape == (2, 2) and obs["tracking"].shape == (2, 3, 2)
+    seg, _, _ = env.sim.tip_location("guide")
+    assert seg == "left_main"
+    assert info["target"][0] == "lad"
+    t0 = env.sim.time
+    for _ in range(3):
+        obs, r, term, trunc, info = env.step(np.array([[0, 0], [0.02, 1.0]], dtype=np.float32))
+    assert obs in env.observation_space and env.sim.time > t0
+    assert env.sim.rollbacks == 0

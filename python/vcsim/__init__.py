@@ -1,0 +1,21 @@
+"""vcsim: a simulator for training cardiovascular interventions, from Python.
+
+The compiled core (``vcsim._vcsim``) holds the engine: ``Simulator`` (step, snapshot, restore,
+state as numpy arrays), ``Anatomy`` (built-in and varied patients, centrelines), ``CArm``
+(poses and projection), ``Fluoroscopy`` (images) and ``AutopilotPolicy``. Units are SI
+(m, rad, N, s). ``vcsim.envs`` holds learning environments in Gymnasium's conventions.
+See docs/python.md.
+"""
+from ._vcsim import (  # noqa: F401
+    Anatomy,
+    Autopilot,
+    AutopilotPolicy,
+    CArm,
+    Fluoroscopy,
+    InputError,
+    Simulator,
+    Snapshot,
+)
+
+__all__ = ["Anatomy", "Autopilot", "AutopilotPolicy", "CArm", "Fluoroscopy", "InputError", "Simulator",
+           "Snapshot"]

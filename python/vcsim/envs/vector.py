@@ -1,0 +1,94 @@
+"""Several environments stepped side by side in threads (the engine releases the GIL while it
+steps), in the conventions of gymnasium's vector environments: batched observations (a dict of
+stacked arrays), rewards, terminations and truncations as arrays, and automatic reset of an
+environment whose episode ended (its last observation and info in infos["final_observation"]
+and infos["final_info"])."""
+from __future__ import annotations
+
+import concurrent.futures
+
+import numpy as np
+
+from ._spaces import Box, Dict
+
+__all__ = ["ThreadVectorEnv"]
+
+
+def _stack(items):
+    if isinstance(items[0], dict):
+        return {k: np.stack([it[k] for it in items]) for k in items[0]}
+    return np.stack(items)
+
+
+def _batched(space, n):
+    if isinstance(space, Dict):
+        return Dict({k: _batched(s, n) for k, s in space.spaces.items()})
+    return Box(np.stack([space.low] * n), np.stack([space.high] * n), dtype=space.dtype)
+
+
+class ThreadVectorEnv:
+    """num_envs copies of an environment, stepped in parallel threads in one call.
+
+    ``ThreadVectorEnv(vcsim.envs.ArchNavigation, 2, observation="tracking3d")`` makes two
+    ArchNavigation(observation="tracking3d"); ``ThreadVectorEnv([make_a, make_b])`` takes
+    factories. reset(seed=s) seeds environment i with s + i, so a vector run gives the same
+    episodes as stepping the environments one by one with those seeds.
+    """
+
+    def __init__(self, env_fns, num_envs=None, threads=None, **kwargs):
+        if callable(env_fns) and num_envs is not None:
+            if int(num_envs) < 1:
+                raise ValueError(f"num_envs: expected at least 1, got {num_envs}")
+            self.envs = [env_fns(**kwargs) for _ in range(int(num_envs))]
+        elif isinstance(env_fns, (list, tuple)) and env_fns and num_envs is None:
+            self.envs = [f() for f in env_fns]
+        else:
+            raise ValueError("env_fns: expected an environment class or factory with num_envs, "
+                             "or a non-empty list of factories")
+        self.num_envs = len(self.envs)
+        self.single_observation_space = self.envs[0].observation_space
+        self.single_action_space = self.envs[0].action_space
+        self.observation_space = _batched(self.single_observation_space, self.num_envs)
+        self.action_space = _batched(self.single_action_space, self.num_envs)
+        self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=threads or self.num_envs)
+
+    def reset(self, *, seed=None, options=None):
+        seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
+        out = list(self._pool.map(lambda ie: ie[1].reset(seed=seeds[ie[0]], options=options),
+                                  enumerate(self.envs)))
+        return _stack([o for o, _ in out]), {"envs": [i for _, i in out]}
+
+    def step(self, actions):
+        actions = np.asarray(actions)
+        want = (self.num_envs,) + tuple(self.single_action_space.shape)
+        if actions.shape != want:
+            raise ValueError(f"actions: expected shape {want}, got {actions.shape}")
+
+        def one(i):
+            env = self.envs[i]
+            obs, r, term, trunc, info = env.step(actions[i])
+            if term or trunc:
+                info = dict(info)
+                final_obs, final_info = obs, info
+                obs, _ = env.reset()
+                return obs, r, term, trunc, {"final_observation": final_obs,
+                                             "final_info": final_info}
+            return obs, r, term, trunc, info
+
+        out = list(self._pool.map(one, range(self.num_envs)))
+        obs = _stack([o[0] for o in out])
+        return (obs, np.array([o[1] for o in out], dtype=np.float64),
+                np.array([o[2] for o in out], dtype=bool),
+                np.array([o[3] for o in out], dtype=bool), {"envs": [o[4] for o in out]})
+
+    def close(self):
+        self._pool.shutdown(wait=True)
+        for e in self.envs:
+            e.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *args):
+        self.close()
+        return False
