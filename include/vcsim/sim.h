@@ -33,6 +33,7 @@
 #include "vcsim/instruments.h"
 #include "vcsim/procedure.h"
 #include "vcsim/solver.h"
+#include "vcsim/units.h"
 
 namespace vcsim {
 
@@ -793,5 +794,88 @@ class AutopilotInput : public InputSource {
   Autopilot& pilot_;
   const Simulator& sim_;
 };
+
+// ---------------------------------------------------------------------------------------------
+// Soak (docs/scenarios.md, "Soak")
+
+struct SoakSettings {
+  double duration = 3600.0;  // s simulated
+  std::uint64_t seed = 1;
+  double max_speed = 0.2;     // m/s: the fastest push or pull (a hand's quick pull)
+  double max_spin = 2 * kPi;  // rad/s: the fastest turn (a flick of the fingers)
+  double max_depth = 1.2;     // m: the deepest insertion (and 0.2 m short of each instrument's end)
+};
+
+// Seeded random hands on every instrument: holds, pushes, pulls, turns, fast reversals (push and
+// pull every 0.1-0.3 s), full withdrawals followed by reinsertion, and now and then an injection.
+// Velocity commands within the settings' speeds, the depth kept in [0, max_depth]. A plain value
+// reading the state (as the Autopilot); the same seed gives the same run.
+class SoakHands {
+ public:
+  SoakHands(const SimModel& model, const SoakSettings& settings);
+  void command(const Simulator& sim, StepCommands& out);
+
+ private:
+  enum class Gesture { kHold, kPush, kPull, kTurn, kReversals, kWithdraw, kReinsert };
+  struct Hand {
+    Gesture gesture = Gesture::kHold;
+    double until = 0.0, started = 0.0;  // s
+    double speed = 0.0, spin = 0.0;     // m/s, rad/s
+    double reversal = 0.0;              // s per half period of a reversal gesture
+    double target = -1.0;               // m: depth a withdrawal or reinsertion goes to
+    double max_depth = 1.0;             // m
+  };
+  double uniform(double lo, double hi);
+  void next_gesture(Hand& h, double now, double depth);
+  SoakSettings settings_;
+  Random rng_;
+  std::vector<Hand> hands_;
+  double inject_until_ = -1.0;
+};
+
+struct SoakReport {
+  std::int64_t steps = 0;
+  double simulated = 0.0;  // s
+  double wall = 0.0;       // s
+  int rollbacks = 0;       // steps that produced a non-finite value and were undone
+  bool finite = true;      // the final state holds finite values only
+  double resident_start_mb = 0.0, resident_after_first_minute_mb = 0.0, resident_end_mb = 0.0;
+  std::vector<double> resident_samples_mb;  // each simulated minute
+  // The hand force's smoothness: steps more than 1 N off the median of their 11 neighbours.
+  struct Instrument {
+    std::string name;
+    std::int64_t checked_steps = 0;  // inserted steps with 5 inserted neighbours on each side
+    std::int64_t departures = 0;
+    double largest_departure = 0.0;  // N
+    double largest_force = 0.0;      // N
+    double deepest = 0.0;            // m inserted at most
+    int withdrawals = 0;             // times pulled all the way out (and back in)
+  };
+  std::vector<Instrument> instruments;
+  // Resident size growth from the end of the first simulated minute to the end (fraction).
+  double memory_growth() const;
+  // No non-finite value, no rollback, memory flat (growth under 1 %).
+  bool passed() const;
+};
+
+// Watches a soak's steps (SoakReport's force figures).
+class SoakWatch {
+ public:
+  explicit SoakWatch(int instruments);
+  void after_step(const Simulator& sim);
+  SoakReport& report() { return report_; }
+
+ private:
+  std::vector<std::vector<double>> window_;  // (instrument) the last 11 hand forces
+  std::vector<unsigned char> inserted_;      // (instrument) in the body at the last step
+  SoakReport report_;
+};
+
+// Resident set size of this process (MB), from /proc/self/statm; 0 where unavailable.
+double resident_megabytes();
+
+// Runs `sim` for settings.duration under SoakHands, sampling the resident size each simulated
+// minute. The observer (a force log) sees every step.
+SoakReport soak(Simulator& sim, const SoakSettings& settings, RunObserver* observer = nullptr);
 
 }  // namespace vcsim

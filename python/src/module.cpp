@@ -218,6 +218,39 @@ class PySimulator {
         inserted_only ? static_cast<std::size_t>(sim_->instrument(i).drive.first_free) : 0;
     return points_array(std::span<const Vec3>(x).subspan(std::min(first, x.size())));
   }
+  // `count` points along instrument i's inserted part from its tip back, `spacing` m apart by
+  // arc length (the last inserted node repeated when the inserted part is shorter).
+  Array tracking(const py::object& inst, int count, double spacing) const {
+    const int i = index(inst);
+    if (count < 1 || count > 10000)
+      throw py::value_error("points: expected 1 to 10000, got " + std::to_string(count));
+    if (!(spacing > 0.0 && spacing < 1.0))
+      throw py::value_error("spacing: expected a length in (0, 1) m");
+    std::vector<Vec3> out(static_cast<std::size_t>(count));
+    {
+      py::gil_scoped_release nogil;
+      const auto& x = sim_->instrument(i).rod.x;
+      const int first =
+          std::min(sim_->instrument(i).drive.first_free, static_cast<int>(x.size()) - 1);
+      int k = static_cast<int>(x.size()) - 1;  // walking from the tip toward the hub
+      double along = 0.0;                      // arc length from the tip to node k
+      for (int p = 0; p < count; ++p) {
+        const double want = p * spacing;
+        while (k > first && along + (x[k] - x[k - 1]).norm() < want) {
+          along += (x[k] - x[k - 1]).norm();
+          --k;
+        }
+        if (k > first) {
+          const double seg = (x[k] - x[k - 1]).norm();
+          const double t = seg > 0.0 ? std::clamp((want - along) / seg, 0.0, 1.0) : 0.0;
+          out[static_cast<std::size_t>(p)] = x[k] + t * (x[k - 1] - x[k]);
+        } else {
+          out[static_cast<std::size_t>(p)] = x[k];
+        }
+      }
+    }
+    return points_array(out);
+  }
   py::dict contacts(const py::object& inst) const {
     const int i = index(inst);
     const auto c = sim_->contacts(i);
@@ -520,7 +553,9 @@ PYBIND11_MODULE(_vcsim, m) {
           "path_length",
           [](const VesselTree& t, const std::string& s0, double d0, const std::string& s1,
              double d1) {
-            return path_length(t, location(t, s0, d0, "from"), location(t, s1, d1, "to"));
+            const TreeLocation a = location(t, s0, d0, "from"), b = location(t, s1, d1, "to");
+            py::gil_scoped_release nogil;
+            return path_length(t, a, b);
           },
           py::arg("from_segment"), py::arg("from_distance"), py::arg("to_segment"),
           py::arg("to_distance"), "Length along the centrelines between two places, m");
@@ -592,7 +627,10 @@ PYBIND11_MODULE(_vcsim, m) {
       .def_property_readonly("num_instruments", &PySimulator::n)
       .def_property_readonly("instrument_names",
                              [](const PySimulator& s) { return s.sim().instrument_names(); })
-      .def_property_readonly("anatomy", [](const PySimulator& s) { return s.sim().tree(); })
+      .def_property_readonly(
+          "anatomy", [](const PySimulator& s) -> const VesselTree& { return s.sim().tree(); },
+          py::return_value_policy::reference_internal,
+          "The scene's anatomy at rest (lesions applied); lives as long as the simulator")
       .def_property_readonly("state_hash",
                              [](const PySimulator& s) { return s.sim().state().hash(); })
       .def_property_readonly("rollbacks",
@@ -604,12 +642,20 @@ PYBIND11_MODULE(_vcsim, m) {
            "(instruments, 2): axial force N (> 0 resists insertion), torque N m")
       .def("positions", &PySimulator::positions, py::arg("instrument"),
            py::arg("inserted_only") = true, "(nodes, 3) centreline of an instrument, m")
+      .def("tracking", &PySimulator::tracking, py::arg("instrument"), py::arg("points"),
+           py::arg("spacing"),
+           "(points, 3): the inserted part from the tip back, `spacing` m apart by arc length")
       .def("contacts", &PySimulator::contacts, py::arg("instrument"),
            "The last step's wall contacts: node, normal (k, 3), depth m, force N")
       .def(
           "tip_location",
           [](const PySimulator& s, const py::object& inst) {
-            const TreeHit h = s.sim().tip_location(s.index(inst));
+            const int i = s.index(inst);
+            TreeHit h;
+            {
+              py::gil_scoped_release nogil;
+              h = s.sim().tip_location(i);
+            }
             return py::make_tuple(
                 h.loc.segment >= 0 ? s.sim().tree().segments[h.loc.segment].name : std::string(),
                 h.loc.distance, h.outside);
@@ -655,6 +701,8 @@ PYBIND11_MODULE(_vcsim, m) {
           py::arg("sim"), py::kw_only(), py::arg("phases") = -1, py::arg("duration") = 600.0,
           "Drives sim until `phases` phases of the plan are done (-1: all), the autopilot fails "
           "or `duration` s pass; True when the phases are done")
+      .def_readwrite("max_retries", &Autopilot::max_retries,
+                     "Retries per phase before it gives up (16)")
       .def_property_readonly("phase", &Autopilot::phase)
       .def_property_readonly("finished", &Autopilot::finished)
       .def_property_readonly("failed", &Autopilot::failed)

@@ -58,17 +58,21 @@ def run_episode(env, policy_name: str, seed: int, max_steps: int | None = None) 
     policy = make_policy(policy_name, env, seed)
     total, steps, done = 0.0, 0, False
     t0 = time.perf_counter()
+    gave_up = False
     while not done:
         obs, r, term, trunc, info = env.step(policy(obs))
         total += r
         steps += 1
-        done = term or trunc or (max_steps is not None and steps >= max_steps)
+        # The autopilot that gave up only holds still: the episode is lost, end it.
+        gave_up = bool(getattr(policy, "failed", False)) and not term
+        done = term or trunc or gave_up or (max_steps is not None and steps >= max_steps)
     ep = info["episode"]
     return {"seed": seed, "success": bool(info["success"]), "steps": steps,
             "time_s": round(float(info["time"]), 6), "return": total,
             "path_length_mm": round(info["path_length"] * 1e3, 3),
             "target": ep.target_segment, "anatomy": ep.anatomy,
-            "instruments": list(ep.instruments), "state_hash": env.sim.state_hash,
+            "instruments": list(ep.instruments), "gave_up": gave_up,
+            "state_hash": env.sim.state_hash,
             "wall_s": time.perf_counter() - t0}
 
 
@@ -109,7 +113,12 @@ def main(argv=None) -> int:
         comm = None
     rank = comm.Get_rank() if comm else 0
     size = comm.Get_size() if comm else 1
-    mine = [run_episode(env, a.policy, s, a.max_steps) for s in seeds[rank::size]]
+    mine = []
+    for s in seeds[rank::size]:
+        try:
+            mine.append(run_episode(env, a.policy, s, a.max_steps))
+        except Exception as e:  # an episode that could not run counts as a failure
+            mine.append({"seed": s, "success": False, "error": f"{type(e).__name__}: {e}"})
     env.close()
     gathered = comm.gather(mine, root=0) if comm else [mine]
     if rank != 0:
@@ -120,7 +129,8 @@ def main(argv=None) -> int:
     summary = {"env": a.env, "policy": a.policy, "processes": size, "episodes": n,
                "success_rate": len(ok) / n,
                "mean_time_to_target_s": (sum(e["time_s"] for e in ok) / len(ok)) if ok else None,
-               "mean_steps": sum(e["steps"] for e in episodes) / n}
+               "mean_steps": sum(e.get("steps", 0) for e in episodes) / n,
+               "errors": sum(1 for e in episodes if "error" in e)}
     text = json.dumps({"summary": summary, "episodes": episodes}, indent=1)
     if a.out:
         with open(a.out, "w") as f:

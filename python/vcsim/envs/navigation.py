@@ -20,7 +20,12 @@ import numpy as np
 from .. import _vcsim
 from ._spaces import Box, Dict, Env
 
-__all__ = ["ArchNavigation", "CoronaryNavigation", "Episode"]
+__all__ = ["ArchNavigation", "CoronaryNavigation", "Episode", "StartFailed"]
+
+
+class StartFailed(RuntimeError):
+    """An episode's start could not be made (the autopilot bringing the instruments there gave
+    up); reset() draws another episode."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,6 +93,8 @@ class _Navigation(Env):
         self.dose = float(dose)
         self._starts = collections.OrderedDict()  # start_key -> (sim, snapshot, autopilot)
         self._fluoro = {}  # id(sim) -> Fluoroscopy
+        self._failed = {}  # start_key -> why its start could not be made
+        self._redraws = 0
         self.sim = None
         self.episode = None
         n = self.num_controlled
@@ -128,24 +135,39 @@ class _Navigation(Env):
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
         options = options or {}
-        ep = options.get("episode") or self._draw(self.np_random)
-        if not isinstance(ep, Episode):
+        given = options.get("episode")
+        if given is not None and not isinstance(given, Episode):
             raise TypeError("options['episode']: expected a vcsim.envs.Episode")
-        key = ep.start_key
-        if key in self._starts:
-            self._starts.move_to_end(key)
-        else:
-            sim, pilot = self._build(ep)
-            self._starts[key] = (sim, sim.snapshot(), pilot)
+        ep = given or self._draw(self.np_random)
+        redraws = 0
+        while ep.start_key not in self._starts:
+            try:
+                if ep.start_key in self._failed:
+                    raise StartFailed(self._failed[ep.start_key])
+                sim, pilot = self._build(ep)
+            except StartFailed as e:
+                # A drawn episode whose start could not be made (the autopilot that brings the
+                # instruments there gave up): draw another from the same generator, so a seed
+                # still decides the episode.
+                self._failed[ep.start_key] = str(e)
+                if given is not None or redraws >= 5:
+                    raise
+                redraws += 1
+                ep = self._draw(self.np_random)
+                continue
+            self._starts[ep.start_key] = (sim, sim.snapshot(), pilot)
             while len(self._starts) > self.start_cache:
-                old, _ = self._starts.popitem(last=False)
+                _, old = self._starts.popitem(last=False)
                 self._fluoro.pop(id(old[0]), None)
+        key = ep.start_key
+        self._starts.move_to_end(key)
+        self._redraws = redraws
         sim, snap, pilot = self._starts[key]
         sim.restore(snap)
         self.sim = sim
         self._start_autopilot = pilot
         self.episode = ep
-        anatomy = sim.anatomy
+        anatomy = self._anatomy = sim.anatomy
         self._target = anatomy.point_at(ep.target_segment, ep.target_distance)
         self._carm = _vcsim.CArm(primary_deg=ep.primary_deg, secondary_deg=ep.secondary_deg,
                                  fov=0.2 if not self._is_coronary else 0.15,
@@ -224,20 +246,12 @@ class _Navigation(Env):
         seg, dist, _ = self.sim.tip_location(self._lead)
         if not seg:
             return float(np.linalg.norm(self._tip_rest() - self._target))
-        anatomy = self.sim.anatomy
-        return anatomy.path_length(seg, dist, self.episode.target_segment,
+        return self._anatomy.path_length(seg, dist, self.episode.target_segment,
                                    self.episode.target_distance)
 
     def _tracked(self, i, dim):
         """tracking_points points along instrument i from its tip back, tracking_spacing apart."""
-        x = self.sim.positions(i, inserted_only=True)
-        if len(x) == 0:
-            x = self.sim.positions(i, inserted_only=False)[-1:]
-        x = x[::-1]
-        seg = np.linalg.norm(np.diff(x, axis=0), axis=1)
-        s = np.concatenate([[0.0], np.cumsum(seg)])
-        want = np.arange(self.tracking_points) * self.tracking_spacing
-        pts = np.stack([np.interp(want, s, x[:, k]) for k in range(3)], axis=1)
+        pts = self.sim.tracking(i, self.tracking_points, self.tracking_spacing)
         return self._carm.project(pts) if dim == 2 else pts
 
     def _observe(self):
@@ -268,7 +282,8 @@ class _Navigation(Env):
                 "time": float(self.sim.time), "steps": self._steps,
                 "target": (self.episode.target_segment, self.episode.target_distance),
                 "target_point": self._target.copy(),
-                "hand_forces": self.sim.hand_forces(), "episode": self.episode}
+                "hand_forces": self.sim.hand_forces(), "episode": self.episode,
+                "redraws": self._redraws}
 
 
 class _AutopilotBaseline:
@@ -283,6 +298,15 @@ class _AutopilotBaseline:
     def __call__(self, obs=None):
         a = self.policy.act(self.env.sim, self.period)
         return np.asarray(a[list(self.env._controlled())], dtype=np.float32)
+
+    @property
+    def failed(self) -> bool:
+        """The autopilot gave up (stuck after every retry): it holds still from then on."""
+        return self.policy.failed
+
+    @property
+    def status(self) -> str:
+        return self.policy.status
 
 
 def _uniform(rng, lo, hi, on=True):
@@ -464,9 +488,12 @@ class CoronaryNavigation(_Navigation):
         tree = _patient_tree(ep.anatomy, ep.variation)
         sim = _vcsim.Simulator(self._scenario(ep), anatomy=tree)
         pilot = _vcsim.Autopilot(sim)
+        # Fewer retries than a run's: a start that does not come quickly is drawn again.
+        pilot.max_retries = 6
         if not pilot.run(sim, phases=4, duration=60.0):
-            raise RuntimeError(f"CoronaryNavigation: the guide could not be seated for {ep} "
-                               f"(autopilot: {pilot.status})")
+            raise StartFailed(f"CoronaryNavigation: the guide could not be seated for {ep} "
+                              f"(autopilot: {pilot.status})")
+        pilot.max_retries = 16
         # The wire brought up inside the guide to 20 mm short of its tip, the guide held.
         depths = sim.depths()
         target = depths[0] - 0.02

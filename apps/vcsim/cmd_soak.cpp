@@ -1,0 +1,137 @@
+// `vcsim soak`: seeded random hands on every instrument in a built-in patient with the heart
+// beating, for a long simulated time (docs/scenarios.md, "Soak"). The engine does the work
+// (soak(), src/sim/soak.cpp); this is options and the report.
+#include <cmath>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "commands.h"
+#include "vcsim/core.h"
+#include "vcsim/sim.h"
+
+namespace vcsim::app {
+
+namespace {
+
+struct SoakOptions {
+  std::vector<std::string> patients = {"default"};
+  double minutes = 60.0;
+  std::uint64_t seed = 1;
+  std::string json;
+  std::string force_log;
+  bool quiet = false;
+};
+
+// The default scenario's settings and its first three instruments (guide, J wire, 0.014" wire)
+// in `patient`, no plan, no landmarks.
+Scenario soak_scenario(const std::string& patient) {
+  Scenario sc = load_scenario(find_scenario("default", "soak", "scenario"));
+  sc.name = "soak-" + patient;
+  sc.anatomy = patient;
+  sc.beating = true;
+  sc.instruments.resize(3);
+  sc.autopilot.clear();
+  sc.landmarks.clear();
+  sc.targets = {};
+  sc.time_limit = 1e9;
+  return sc;
+}
+
+nlohmann::json to_json(const SoakReport& r, const std::string& patient) {
+  nlohmann::json inst = nlohmann::json::array();
+  for (const auto& i : r.instruments)
+    inst.push_back({{"name", i.name},
+                    {"checked_steps", i.checked_steps},
+                    {"steps_over_1n_off_median", i.departures},
+                    {"largest_departure_n", i.largest_departure},
+                    {"largest_force_n", i.largest_force},
+                    {"deepest_mm", i.deepest * 1e3},
+                    {"withdrawals", i.withdrawals}});
+  return {{"patient", patient},
+          {"steps", r.steps},
+          {"simulated_s", r.simulated},
+          {"wall_s", r.wall},
+          {"realtime_factor", r.wall > 0 ? r.simulated / r.wall : 0.0},
+          {"rollbacks", r.rollbacks},
+          {"finite", r.finite},
+          {"resident_start_mb", r.resident_start_mb},
+          {"resident_after_first_minute_mb", r.resident_after_first_minute_mb},
+          {"resident_end_mb", r.resident_end_mb},
+          {"resident_samples_mb", r.resident_samples_mb},
+          {"memory_growth", r.memory_growth()},
+          {"instruments", inst},
+          {"passed", r.passed()}};
+}
+
+int cmd_soak(const SoakOptions& o) {
+  if (!(o.minutes > 0.0 && o.minutes <= 24 * 60.0))
+    throw InputError("soak", "--minutes", "expected a simulated time in (0, 1440] minutes");
+  for (const std::string& p : o.patients) (void)patient_variant_from_string(p, "soak: --patient");
+  nlohmann::json out = nlohmann::json::array();
+  bool all = true;
+  for (const std::string& patient : o.patients) {
+    Simulator sim(soak_scenario(patient));
+    SoakSettings s;
+    s.duration = o.minutes * 60.0;
+    s.seed = o.seed;
+    std::unique_ptr<ForceLog> log;
+    if (!o.force_log.empty()) {
+      const std::string file = o.patients.size() > 1 ? patient + "-" + o.force_log : o.force_log;
+      log = std::make_unique<ForceLog>(file, sim.model());
+    }
+    if (!o.quiet)
+      std::cout << "soak: " << patient << ", " << o.minutes << " min simulated, seed " << o.seed
+                << std::endl;
+    const SoakReport r = soak(sim, s, log.get());
+    all = all && r.passed();
+    out.push_back(to_json(r, patient));
+    if (!o.quiet) {
+      std::cout << std::fixed << std::setprecision(2) << "  " << r.steps << " steps, "
+                << r.simulated << " s in " << r.wall << " s; rollbacks " << r.rollbacks
+                << ", finite " << (r.finite ? "yes" : "NO") << "; resident "
+                << r.resident_after_first_minute_mb << " MB after 1 min, " << r.resident_end_mb
+                << " MB at the end (" << std::setprecision(3) << 100 * r.memory_growth() << " %)\n";
+      for (const auto& i : r.instruments)
+        std::cout << "  " << i.name << ": " << std::setprecision(0) << i.deepest * 1e3
+                  << " mm deepest, " << i.withdrawals << " withdrawals; largest hand force "
+                  << std::setprecision(2) << i.largest_force << " N, " << i.departures << " of "
+                  << i.checked_steps << " steps more than 1 N off their local median (largest "
+                  << i.largest_departure << " N)\n";
+      std::cout << "  " << (r.passed() ? "passed" : "FAILED") << "\n";
+    }
+  }
+  if (!o.json.empty()) {
+    std::ofstream f(o.json);
+    if (!f) throw InputError("soak", "--json", "cannot write '" + o.json + "'");
+    f << out.dump(1) << "\n";
+  }
+  return all ? 0 : 3;
+}
+
+void install(CLI::App& app, int& status) {
+  auto o = std::make_shared<SoakOptions>();
+  auto* cmd = app.add_subcommand(
+      "soak",
+      "Seeded random hands on every instrument in a beating patient: no NaN, no rollback, flat "
+      "memory (exit 3 when a check fails)");
+  cmd->add_option("--patient", o->patients,
+                  "Built-in patients (default, left-dominant; several run one after another)");
+  cmd->add_option("--minutes", o->minutes, "Simulated minutes per patient (default 60)");
+  cmd->add_option("--seed", o->seed, "Seed of the random hands (default 1)");
+  cmd->add_option("--json", o->json, "Write the figures to this JSON file");
+  cmd->add_option("--force-log", o->force_log,
+                  "Every step's hand force per instrument to this CSV (vcsim run --force-log)");
+  cmd->add_flag("--quiet", o->quiet, "No output but errors");
+  cmd->callback([o, &status] { status = cmd_soak(*o); });
+}
+
+const int kRegistered = register_command(8, install);
+
+}  // namespace
+
+}  // namespace vcsim::app
