@@ -36,23 +36,13 @@ struct Loaded {
   Lumen lumen;
 };
 
-VesselTree load_centrelines(const std::string& path, double unit_mm) {
-  if (lower_ext(path) == ".pth") return load_pth_paths(path, unit_mm * 1e-3);
-  return load_vessel_tree(path);
-}
-
 Loaded load(const Source& s) {
   Loaded l;
   const std::string ext = s.file.empty() ? "" : lower_ext(s.file);
   if (ext == ".stl" || ext == ".obj" || ext == ".ply") {
     if (s.centrelines.empty())
       throw InputError("anatomy", "--centrelines", "an imported mesh needs its centrelines file");
-    l.tree = load_centrelines(s.centrelines, s.unit_mm);
-    if (lower_ext(s.centrelines) == ".pth") {
-      MeshLoadOptions mo;
-      mo.unit_scale = s.unit_mm * 1e-3;
-      measure_radii_on_mesh(l.tree, load_mesh(s.file, mo), s.centrelines);
-    }
+    l.tree = load_mesh_centrelines(s.centrelines, s.file, s.unit_mm * 1e-3);
     l.lumen = import_lumen(s.file, l.tree, s.unit_mm * 1e-3);
     return l;
   }
@@ -180,7 +170,7 @@ int cmd_export(const Source& s, const std::string& out, bool healthy, bool body)
             ? (s.file.empty()
                    ? default_patient(patient_variant_from_string(s.patient, "anatomy --patient"))
                    : load_vessel_tree(s.file))
-            : load_centrelines(s.centrelines, s.unit_mm);
+            : load_mesh_centrelines(s.centrelines, s.file, s.unit_mm * 1e-3);
     save_vessel_tree(t, out);
     std::cout << "wrote " << out << "\n";
     return 0;

@@ -292,6 +292,13 @@ VesselTree load_pth_paths(const std::string& path, double unit_scale = 1e-3);
 // Fills empty radii from the mesh (closest-wall distance), links each segment to the segment
 // whose lumen holds its first point, and validates the tree.
 void measure_radii_on_mesh(VesselTree& tree, const TriangleMesh& mesh, const std::string& source);
+// The centrelines of an imported lumen mesh: a vcsim-anatomy JSON, or a SimVascular .pth whose
+// radii are measured on the mesh (`mesh_path`, read with `unit_scale` m per file unit, as the
+// .pth's points are).
+VesselTree load_mesh_centrelines(const std::string& centrelines_path, const std::string& mesh_path,
+                                 double unit_scale);
+// Is `path` a lumen mesh file (.stl, .obj, .ply, any case)?
+bool is_mesh_file(const std::string& path);
 
 // ---------------------------------------------------------------------------------------------
 // Cardiac and respiratory motion

@@ -163,6 +163,11 @@ struct Scenario {
   // A built-in patient ("default", "left-dominant") or a vessel tree file (vcsim-anatomy JSON),
   // relative to the scenario's folder.
   std::string anatomy = "default";
+  // With an anatomy that is a lumen mesh (.stl, .obj, .ply: a segmented patient or a phantom,
+  // docs/anatomy.md "A mesh in a run"): its centrelines (vcsim-anatomy JSON or SimVascular .pth,
+  // relative to the scenario's folder) and the length of the files' unit (m).
+  std::string centrelines;
+  double mesh_unit = 1e-3;
   bool beating = true;
   MotionSettings motion;
   double dt = 1e-3;          // s, physics step (1 kHz or faster)

@@ -1,6 +1,7 @@
 // Patient meshes: a lumen mesh from a file with centrelines from our JSON or a SimVascular .pth
 // path file (Vascular Model Repository), radii measured on the mesh where the file has none.
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -175,6 +176,29 @@ Lumen import_lumen(const std::string& mesh_path, const VesselTree& tree, double 
   internal::finish_lumen(tree, lu);
   lu.build_seconds = (now_us() - t0) * 1e-6;
   return lu;
+}
+
+namespace {
+std::string lower_extension(const std::string& path) {
+  std::string e = std::filesystem::path(path).extension().string();
+  std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return std::tolower(c); });
+  return e;
+}
+}  // namespace
+
+bool is_mesh_file(const std::string& path) {
+  const std::string e = lower_extension(path);
+  return e == ".stl" || e == ".obj" || e == ".ply";
+}
+
+VesselTree load_mesh_centrelines(const std::string& centrelines_path, const std::string& mesh_path,
+                                 double unit_scale) {
+  if (lower_extension(centrelines_path) != ".pth") return load_vessel_tree(centrelines_path);
+  VesselTree tree = load_pth_paths(centrelines_path, unit_scale);
+  MeshLoadOptions mo;
+  mo.unit_scale = unit_scale;
+  measure_radii_on_mesh(tree, load_mesh(mesh_path, mo), centrelines_path);
+  return tree;
 }
 
 }  // namespace vcsim

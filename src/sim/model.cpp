@@ -14,6 +14,14 @@ namespace {
 
 VesselTree load_anatomy(const Scenario& sc) {
   const std::string& a = sc.anatomy;
+  if (is_mesh_file(a)) {
+    for (auto [f, key] : {std::pair{sc.base_dir / a, "anatomy"},
+                          std::pair{sc.base_dir / sc.centrelines, "centrelines"}})
+      if (!std::filesystem::exists(f))
+        throw InputError(sc.source, key, "expected a file, '" + f.string() + "' does not exist");
+    return load_mesh_centrelines((sc.base_dir / sc.centrelines).string(),
+                                 (sc.base_dir / a).string(), sc.mesh_unit);
+  }
   const bool file = a.size() > 5 && a.substr(a.size() - 5) == ".json";
   if (!file) return default_patient(patient_variant_from_string(a, sc.source + ": anatomy"));
   const std::filesystem::path p = sc.base_dir / a;
@@ -47,13 +55,20 @@ void hash_tree(StateHasher& h, const VesselTree& t) {
 }
 
 // The introducer sheath at the tree's access, pointing along the vessel toward the heart
-// (retrograde, against the centreline's flow direction). Its straight part in the femoral artery
-// holds what passes through it on the axis; its lumen is set by the widest instrument.
+// (retrograde, against the centreline's flow direction), or into it from an inlet. Its straight
+// part in the femoral artery holds what passes through it on the axis; its lumen is set by the
+// widest instrument.
 Sheath make_sheath(const VesselTree& tree, double length) {
   const VesselSegment& acc = tree.segments[tree.access.segment];
   Sheath sheath;
   sheath.access_point = point_at(acc, tree.access.distance);
-  const Vec3 axis = -tangent_at(acc, tree.access.distance);
+  // At an inlet (the root's open start: a phantom's or a segmented patient's cut end, within the
+  // first half of the root) the instruments go in with the flow, into the vessel; elsewhere
+  // against it, toward the heart.
+  const bool inlet =
+      acc.parent < 0 && tree.open_start && tree.access.distance < 0.5 * segment_length(acc);
+  const Vec3 axis =
+      inlet ? tangent_at(acc, tree.access.distance) : Vec3(-tangent_at(acc, tree.access.distance));
   sheath.frame = Quat::FromTwoVectors(Vec3::UnitZ(), axis).normalized();
   sheath.length = length;
   return sheath;
@@ -240,7 +255,10 @@ std::shared_ptr<const SimModel> build_sim_model(Scenario scenario, VesselTree gi
   });
 
   Lumen& lumen = anatomy->lumen;
-  lumen = build_lumen(tree);
+  // A mesh as given (a patient's segmentation, a phantom), else built from the centrelines.
+  lumen = is_mesh_file(sc.anatomy)
+              ? import_lumen((sc.base_dir / sc.anatomy).string(), tree, sc.mesh_unit)
+              : build_lumen(tree);
   if (sc.beating && tree.heart) {
     anatomy->motion.emplace(tree, sc.motion);
   } else {

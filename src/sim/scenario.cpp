@@ -253,6 +253,15 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   sc.name = f.text("name");
   sc.description = f.text_or("description", "");
   sc.anatomy = f.text_or("anatomy", "default");
+  sc.centrelines = f.text_or("centrelines", "");
+  sc.mesh_unit = f.in_range_or("mesh_unit_mm", 1e-3, 1e3, 1.0) * kMm;
+  if (is_mesh_file(sc.anatomy) && sc.centrelines.empty())
+    f.fail("centrelines",
+           "expected the centrelines of the mesh '" + sc.anatomy +
+               "' (a vcsim-anatomy JSON or a SimVascular .pth; they are not computed from a mesh "
+               "yet)");
+  if (!sc.centrelines.empty() && !is_mesh_file(sc.anatomy))
+    f.fail("centrelines", "expected only with an anatomy that is a mesh (.stl, .obj, .ply)");
   if (f.has("motion")) {
     JsonFields m = f.object("motion");
     sc.beating = m.boolean_or("beating", true);
