@@ -1,6 +1,7 @@
 // `vcsim anatomy build | info | export` and `vcsim bench anatomy`: the patient's vessel tree and
 // lumen mesh, and the per-step cost of cardiac motion.
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -11,6 +12,7 @@
 #include "commands.h"
 #include "vcsim/anatomy.h"
 #include "vcsim/mesh_io.h"
+#include "vcsim/units.h"
 
 namespace vcsim::app {
 
@@ -298,6 +300,70 @@ int bench_anatomy(const BenchOptions& o) {
   return 0;
 }
 
+struct CentrelineOptions {
+  std::string mesh;
+  std::vector<double> inlet_mm;
+  double unit_mm = 1.0;
+  double band_mm = 0.0;
+  std::string out;
+  std::string compare;
+};
+
+// Distance from each point of `a`'s centrelines (resampled every 0.5 mm) to the nearest point of
+// `b`'s: the median and 95th percentile (m).
+std::pair<double, double> centreline_distance(const VesselTree& a, const VesselTree& b) {
+  std::vector<Vec3> ref;
+  for (const VesselSegment& s : b.segments) {
+    const double len = segment_length(s);
+    for (double t = 0.0; t <= len; t += 0.25e-3) ref.push_back(point_at(s, t));
+  }
+  std::vector<double> d;
+  for (const VesselSegment& s : a.segments) {
+    const double len = segment_length(s);
+    for (double t = 0.0; t <= len; t += 0.5e-3) {
+      const Vec3 p = point_at(s, t);
+      double best = 1e9;
+      for (const Vec3& q : ref) best = std::min(best, (p - q).squaredNorm());
+      d.push_back(std::sqrt(best));
+    }
+  }
+  if (d.empty()) return {0.0, 0.0};
+  std::sort(d.begin(), d.end());
+  return {d[d.size() / 2], d[std::min(d.size() - 1, d.size() * 95 / 100)]};
+}
+
+int cmd_centrelines(const CentrelineOptions& o) {
+  if (o.inlet_mm.size() != 3)
+    throw InputError("anatomy centrelines", "--inlet-mm", "expected three numbers x y z (mm)");
+  if (!(o.unit_mm > 0.0)) throw InputError("anatomy centrelines", "--unit-mm", "expected > 0");
+  MeshLoadOptions mo;
+  mo.unit_scale = o.unit_mm * 1e-3;
+  const TriangleMesh mesh = load_mesh(o.mesh, mo);
+  const Vec3 inlet(o.inlet_mm[0] * kMm, o.inlet_mm[1] * kMm, o.inlet_mm[2] * kMm);
+  const double t0 = now_us();
+  const VesselTree tree = centrelines_from_mesh(mesh, inlet, o.mesh, o.band_mm * kMm);
+  const double secs = (now_us() - t0) * 1e-6;
+  std::cout << "centrelines of " << o.mesh << ": " << tree.num_segments() << " segments in " << secs
+            << " s\n";
+  for (const VesselSegment& s : tree.segments)
+    std::cout << "  " << s.name << " (parent "
+              << (s.parent >= 0 ? tree.segments[s.parent].name : "-")
+              << "): " << segment_length(s) * 1e3 << " mm, radius "
+              << *std::min_element(s.radii.begin(), s.radii.end()) * 1e3 << "-"
+              << *std::max_element(s.radii.begin(), s.radii.end()) * 1e3 << " mm\n";
+  if (!o.compare.empty()) {
+    const VesselTree ref = load_vessel_tree(o.compare);
+    const auto [median, p95] = centreline_distance(tree, ref);
+    std::cout << "  against " << o.compare << ": distance to its centrelines median "
+              << median * 1e3 << " mm, 95th percentile " << p95 * 1e3 << " mm\n";
+  }
+  if (!o.out.empty()) {
+    save_vessel_tree(tree, o.out);
+    std::cout << "wrote " << o.out << "\n";
+  }
+  return 0;
+}
+
 void install(CLI::App& app, int& status) {
   auto* an = app.add_subcommand("anatomy", "Patient anatomy: vessel tree and lumen mesh");
   an->require_subcommand(1);
@@ -330,6 +396,20 @@ void install(CLI::App& app, int& status) {
   ex->callback([ex_src, ex_out, ex_healthy, ex_body, &status] {
     status = cmd_export(*ex_src, *ex_out, *ex_healthy, *ex_body);
   });
+
+  auto co = std::make_shared<CentrelineOptions>();
+  auto* ce = an->add_subcommand(
+      "centrelines", "Compute centrelines from a lumen mesh (geodesic level sets), as a tree JSON");
+  ce->add_option("mesh", co->mesh, "Lumen mesh (.stl, .obj, .ply)")->required();
+  ce->add_option("--inlet-mm", co->inlet_mm, "A point near the inlet's opening: x y z (mm)")
+      ->expected(3)
+      ->required();
+  ce->add_option("--unit-mm", co->unit_mm, "The mesh file's unit in mm (default 1)");
+  ce->add_option("--band-mm", co->band_mm, "Width of the level-set bands (default: automatic)");
+  ce->add_option("--out,-o", co->out, "Write the tree (.json)");
+  ce->add_option("--compare", co->compare,
+                 "A tree JSON to compare with (median and 95th percentile distance)");
+  ce->callback([co, &status] { status = cmd_centrelines(*co); });
 
   auto bo = std::make_shared<BenchOptions>();
   auto* b = bench_group(app).add_subcommand(

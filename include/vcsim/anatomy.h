@@ -297,6 +297,14 @@ void measure_radii_on_mesh(VesselTree& tree, const TriangleMesh& mesh, const std
 // .pth's points are).
 VesselTree load_mesh_centrelines(const std::string& centrelines_path, const std::string& mesh_path,
                                  double unit_scale);
+// Centrelines computed from a lumen mesh by geodesic level sets (Lazarus and Verroust 1999;
+// docs/anatomy.md, "Centrelines from a mesh"): from the open end nearest `inlet_near`, bands of
+// geodesic distance at least `band` m wide (and 1.5 edge lengths) cut into rings whose centroids
+// and mean radii make the segments; a ring meeting several later rings branches. Segments are
+// named inlet, branch_1, ...; the access is 2 mm into the inlet (open_start). InputError naming
+// `source` for a closed mesh or one too small.
+VesselTree centrelines_from_mesh(const TriangleMesh& mesh, const Vec3& inlet_near,
+                                 const std::string& source, double band = 0.0);
 // Is `path` a lumen mesh file (.stl, .obj, .ply, any case)?
 bool is_mesh_file(const std::string& path);
 

@@ -168,6 +168,9 @@ struct Scenario {
   // relative to the scenario's folder) and the length of the files' unit (m).
   std::string centrelines;
   double mesh_unit = 1e-3;
+  // Without centrelines: they are computed from the mesh (centrelines_from_mesh) from the open
+  // end nearest this point (m), where the sheath goes in.
+  std::optional<Vec3> inlet;
   bool beating = true;
   MotionSettings motion;
   double dt = 1e-3;          // s, physics step (1 kHz or faster)

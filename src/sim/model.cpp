@@ -5,6 +5,7 @@
 #include <string>
 
 #include "plan.h"
+#include "vcsim/mesh_io.h"
 #include "vcsim/sim.h"
 #include "vcsim/units.h"
 
@@ -15,12 +16,21 @@ namespace {
 VesselTree load_anatomy(const Scenario& sc) {
   const std::string& a = sc.anatomy;
   if (is_mesh_file(a)) {
-    for (auto [f, key] : {std::pair{sc.base_dir / a, "anatomy"},
-                          std::pair{sc.base_dir / sc.centrelines, "centrelines"}})
-      if (!std::filesystem::exists(f))
-        throw InputError(sc.source, key, "expected a file, '" + f.string() + "' does not exist");
-    return load_mesh_centrelines((sc.base_dir / sc.centrelines).string(),
-                                 (sc.base_dir / a).string(), sc.mesh_unit);
+    const std::filesystem::path mesh = sc.base_dir / a;
+    if (!std::filesystem::exists(mesh))
+      throw InputError(sc.source, "anatomy",
+                       "expected a file, '" + mesh.string() + "' does not exist");
+    if (sc.centrelines.empty()) {
+      // Computed from the mesh, from the opening nearest the given inlet point.
+      MeshLoadOptions mo;
+      mo.unit_scale = sc.mesh_unit;
+      return centrelines_from_mesh(load_mesh(mesh.string(), mo), *sc.inlet, mesh.string());
+    }
+    const std::filesystem::path cl = sc.base_dir / sc.centrelines;
+    if (!std::filesystem::exists(cl))
+      throw InputError(sc.source, "centrelines",
+                       "expected a file, '" + cl.string() + "' does not exist");
+    return load_mesh_centrelines(cl.string(), mesh.string(), sc.mesh_unit);
   }
   const bool file = a.size() > 5 && a.substr(a.size() - 5) == ".json";
   if (!file) return default_patient(patient_variant_from_string(a, sc.source + ": anatomy"));

@@ -255,13 +255,23 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   sc.anatomy = f.text_or("anatomy", "default");
   sc.centrelines = f.text_or("centrelines", "");
   sc.mesh_unit = f.in_range_or("mesh_unit_mm", 1e-3, 1e3, 1.0) * kMm;
-  if (is_mesh_file(sc.anatomy) && sc.centrelines.empty())
+  if (f.has("inlet_mm")) {
+    const Json& a = f.array("inlet_mm");
+    if (a.size() != 3) f.fail("inlet_mm", "expected [x, y, z] in the mesh's unit");
+    Vec3 p;
+    for (int k = 0; k < 3; ++k)
+      p[k] = f.as_number(a[static_cast<std::size_t>(k)], "inlet_mm[" + std::to_string(k) + "]");
+    if (!p.allFinite()) f.fail("inlet_mm", "expected finite numbers");
+    sc.inlet = p * sc.mesh_unit;
+  }
+  if (is_mesh_file(sc.anatomy) && sc.centrelines.empty() && !sc.inlet)
     f.fail("centrelines",
            "expected the centrelines of the mesh '" + sc.anatomy +
-               "' (a vcsim-anatomy JSON or a SimVascular .pth; they are not computed from a mesh "
-               "yet)");
-  if (!sc.centrelines.empty() && !is_mesh_file(sc.anatomy))
-    f.fail("centrelines", "expected only with an anatomy that is a mesh (.stl, .obj, .ply)");
+               "' (a vcsim-anatomy JSON or a SimVascular .pth), or \"inlet_mm\": a point near "
+               "the opening where instruments go in, to compute them from the mesh");
+  if ((!sc.centrelines.empty() || sc.inlet) && !is_mesh_file(sc.anatomy))
+    f.fail(sc.inlet ? "inlet_mm" : "centrelines",
+           "expected only with an anatomy that is a mesh (.stl, .obj, .ply)");
   if (f.has("motion")) {
     JsonFields m = f.object("motion");
     sc.beating = m.boolean_or("beating", true);

@@ -3,8 +3,11 @@
 // with the key named.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <string>
+#include <vector>
 
+#include "vcsim/mesh_io.h"
 #include "vcsim/sim.h"
 
 namespace vcsim {
@@ -64,6 +67,78 @@ TEST(MeshAnatomy, AnAccessAtAnOpenInletPointsIntoTheVessel) {
   EXPECT_EQ(sim.tip_location(0).loc.segment, 0);
 }
 
+// Median distance from `a`'s centreline points (every 0.5 mm) to `b`'s centrelines (m).
+double median_distance(const VesselTree& a, const VesselTree& b) {
+  std::vector<Vec3> ref;
+  for (const VesselSegment& s : b.segments)
+    for (double t = 0.0; t <= segment_length(s); t += 0.25e-3) ref.push_back(point_at(s, t));
+  std::vector<double> d;
+  for (const VesselSegment& s : a.segments)
+    for (double t = 0.0; t <= segment_length(s); t += 0.5e-3) {
+      double best = 1e9;
+      for (const Vec3& q : ref) best = std::min(best, (point_at(s, t) - q).norm());
+      d.push_back(best);
+    }
+  return median(d);
+}
+
+TEST(MeshAnatomy, CentrelinesFromThePhantomsMeshFollowItsOwn) {
+  const std::string dir = default_scenarios_dir().string() + "/../anatomy/phantom/";
+  const VesselTree truth = load_vessel_tree(dir + "y_phantom.json");
+  MeshLoadOptions mm;
+  mm.unit_scale = 1e-3;
+  const VesselTree got =
+      centrelines_from_mesh(load_mesh(dir + "y_phantom.stl", mm), Vec3::Zero(), "y_phantom.stl");
+  ASSERT_EQ(got.num_segments(), 3);  // the inlet and its two branches
+  EXPECT_EQ(got.segments[1].parent, 0);
+  EXPECT_EQ(got.segments[2].parent, 0);
+  EXPECT_TRUE(got.open_start);
+  EXPECT_LT(median_distance(got, truth), 0.2e-3);
+  // Radii (3.0 mm inlet; 2.2 and 2.0 mm branches) within 10 % along the middle of each.
+  const double r0 = got.segments[0].radii[got.segments[0].radii.size() / 2];
+  EXPECT_NEAR(r0, 3.0e-3, 0.3e-3);
+  std::vector<double> branch = {got.segments[1].radii[got.segments[1].radii.size() / 2],
+                                got.segments[2].radii[got.segments[2].radii.size() / 2]};
+  std::sort(branch.begin(), branch.end());
+  EXPECT_NEAR(branch[0], 2.0e-3, 0.2e-3);
+  EXPECT_NEAR(branch[1], 2.2e-3, 0.22e-3);
+  // A closed mesh has no inlet.
+  TriangleMesh closed = load_mesh(dir + "y_phantom.stl", mm);
+  closed.triangles.resize(4);
+  EXPECT_THROW(centrelines_from_mesh(closed, Vec3::Zero(), "tiny.stl"), InputError);
+}
+
+// The issue's check: on the built-in patient's own lumen, against its own centrelines.
+TEST(MeshAnatomy, CentrelinesFromTheBuiltInPatientsLumenAreWithinHalfAMillimetre) {
+  const VesselTree truth = default_patient();
+  const Lumen lumen = build_lumen(truth);
+  const VesselSegment& fem =
+      truth.segments[static_cast<std::size_t>(truth.find("right_common_femoral"))];
+  const VesselTree got = centrelines_from_mesh(lumen.mesh, fem.points.back(), "patient lumen");
+  EXPECT_GE(got.num_segments(), 20);
+  EXPECT_LT(median_distance(got, truth), 0.5e-3);
+}
+
+TEST(MeshAnatomy, AMeshWithoutCentrelinesRunsOnCentrelinesComputedFromIt) {
+  Scenario sc = parse_scenario(R"({"format": "vcsim-scenario", "version": 1, "name": "y",
+    "anatomy": "../anatomy/phantom/y_phantom.stl", "inlet_mm": [0, 0, -1],
+    "motion": {"beating": false}, "dt_ms": 0.5, "sheath_length_mm": 10,
+    "instruments": [{"name": "wire", "catalogue": "wire-035-angled-hydrophilic",
+                     "max_nodes": 128, "tip_segment_mm": 1}],
+    "input": {"type": "timeline", "file": "unused.json"}})",
+                               "y.json", default_scenarios_dir());
+  Simulator sim(sc);
+  EXPECT_EQ(sim.tree().num_segments(), 3);
+  EXPECT_EQ(sim.tree().segments[0].name, "inlet");
+  StepCommands cmd;
+  cmd.reset(1);
+  cmd.drive[0] = {DriveCommand::Mode::kVelocity, 0.04, 0.0};
+  for (int k = 0; k < 4000; ++k) sim.step(cmd);  // 80 mm in: up to the bifurcation
+  EXPECT_NEAR(sim.depth(0), 0.08, 1e-3);
+  EXPECT_LT(worst_outside(sim), 0.3e-3);
+  EXPECT_EQ(sim.metrics().rollbacks, 0);
+}
+
 void expect_refused(const std::string& extra, const std::string& field) {
   const std::string text = R"({"format": "vcsim-scenario", "version": 1, "name": "m", )" + extra +
                            R"(, "instruments": [{"name": "wire", "catalogue": "wire-014-floppy"}],
@@ -81,6 +156,8 @@ TEST(MeshAnatomy, AMeshWithoutCentrelinesIsRefusedNamingTheKey) {
   expect_refused(R"("anatomy": "patient.stl")", "centrelines");
   expect_refused(R"("anatomy": "patient.PLY")", "centrelines");
   expect_refused(R"("anatomy": "default", "centrelines": "c.json")", "centrelines");
+  expect_refused(R"("anatomy": "default", "inlet_mm": [0, 0, 0])", "inlet_mm");
+  expect_refused(R"("anatomy": "p.stl", "inlet_mm": [0, 0])", "inlet_mm");
   expect_refused(R"("anatomy": "p.stl", "centrelines": "c.json", "mesh_unit_mm": 0)",
                  "mesh_unit_mm");
   // Files that do not exist: named when the scene is built.
