@@ -106,8 +106,15 @@ struct OpenEnd {
 };
 std::vector<OpenEnd> open_ends(const VesselTree& tree);
 
-// Checks names, topology, point and radius arrays, lesions, access and target; throws InputError
-// naming `source` and the offending field.
+// Limits of a vessel tree (docs/anatomy.md), checked by validate_tree: its centrelines fit in a
+// box of kMaxTreeExtent a side (a body is under 1 m from groin to heart), and its lumen meshed at
+// the default voxel sizes would have at most kMaxLumenTriangles triangles, estimated from the
+// wall's area before meshing (a branch 42 m long built 4.7 M triangles in a minute and 1.6 GB).
+inline constexpr double kMaxTreeExtent = 2.0;            // m
+inline constexpr double kMaxLumenTriangles = 2'000'000;  // estimated, before simplification
+
+// Checks names, topology, point and radius arrays, lesions, access and target, and the limits
+// above; throws InputError naming `source` and the offending field.
 void validate_tree(const VesselTree& tree, const std::string& source);
 
 // JSON format (data/anatomy/*.json, docs/anatomy.md): units in key names, converted at load.
@@ -200,6 +207,10 @@ struct LumenSettings {
   bool use_cache = true;
   std::string cache_dir;  // empty: $XDG_CACHE_HOME/vcsim/anatomy or ~/.cache/vcsim/anatomy
 };
+
+// The triangles marching tetrahedra would make of the tree's wall at these voxel sizes (its
+// swept area over the voxel's square, twice): what build_lumen refuses above kMaxLumenTriangles.
+double estimated_lumen_triangles(const VesselTree& tree, const LumenSettings& st);
 
 struct Lumen {
   TriangleMesh mesh;                   // the lumen wall, normals into the lumen (lesions applied)
