@@ -277,6 +277,9 @@ Lumen import_lumen(const std::string& mesh_path, const VesselTree& centrelines,
 // Reads the paths of a SimVascular .pth file (XML, coordinates in `unit_scale` m per unit) as
 // segments without parents; radii are left empty for measure_radii_on_mesh.
 VesselTree load_pth_paths(const std::string& path, double unit_scale = 1e-3);
+// The same from the file's text; `source` names it in errors.
+VesselTree parse_pth_paths(const std::string& text, const std::string& source,
+                           double unit_scale = 1e-3);
 // Fills empty radii from the mesh (closest-wall distance), links each segment to the segment
 // whose lumen holds its first point, and validates the tree.
 void measure_radii_on_mesh(VesselTree& tree, const TriangleMesh& mesh, const std::string& source);
