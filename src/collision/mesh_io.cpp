@@ -441,51 +441,82 @@ void check_ply(std::span<const char> bytes, const std::string& path) {
   }
 }
 
-// OBJ lines counted before assimp reads them: vertices and the triangles of the faces within the
-// limits, every face's vertex indices naming a vertex of the file (assimp's are unchecked).
+// OBJ lines checked before assimp reads them, as it reads them: vertices ("v x y z [w]" or with a
+// colour, "vn", "vt") of decimal numbers, so that both count the same; faces, lines and points
+// of indices "v[/vt][/vn]" that name an element of the file (assimp throws on one out of range,
+// leaking memory); the vertices and the faces' triangles within the limits.
 void check_obj(std::span<const char> bytes, const std::string& path) {
-  std::uint64_t vertices = 0, triangles = 0, line_no = 0;
-  std::vector<std::pair<std::uint64_t, long long>> refs;  // (line, index) of face corners
-  std::size_t at = 0;
-  while (at < bytes.size()) {
-    const char* nl =
-        static_cast<const char*>(std::memchr(bytes.data() + at, '\n', bytes.size() - at));
-    const std::size_t stop = nl ? static_cast<std::size_t>(nl - bytes.data()) : bytes.size();
-    const std::string_view line(bytes.data() + at, stop - at);
-    at = stop + 1;
+  const std::string_view all(bytes.data(), bytes.size());
+  check_text(all, path, "contents");
+  std::uint64_t count[3] = {0, 0, 0};  // v, vt, vn so far
+  std::uint64_t triangles = 0, line_no = 0;
+  struct Ref {
+    std::uint64_t line;
+    int kind;  // 0 v, 1 vt, 2 vn
+    long long index;
+  };
+  std::vector<Ref> refs;  // positive indices, checked against the file's counts at its end
+  for (std::size_t at = 0; at < all.size();) {
+    std::size_t nl = all.find('\n', at);
+    if (nl == std::string_view::npos) nl = all.size();
+    std::istringstream ls{std::string(all.substr(at, nl - at))};
+    at = nl + 1;
     ++line_no;
-    if (line.size() < 2 || !std::isspace(static_cast<unsigned char>(line[1]))) continue;
-    if (line[0] == 'v') {
-      if (++vertices > kMaxMeshVertices)
-        throw InputError(path, "line " + std::to_string(line_no),
-                         "at most " + std::to_string(kMaxMeshVertices) + " vertices");
-    } else if (line[0] == 'f') {
-      std::istringstream ls{std::string(line.substr(1))};
-      std::uint64_t corners = 0;
-      for (std::string w; ls >> w; ++corners) {
-        char* e = nullptr;
-        const long long v = std::strtoll(w.c_str(), &e, 10);
-        if (e == w.c_str() || v == 0 || (*e != '\0' && *e != '/'))
-          throw InputError(
-              path, "line " + std::to_string(line_no),
-              "a face of vertex indices (1-based, or negative: relative), got '" + w + "'");
-        if (v < 0 && static_cast<std::uint64_t>(-(v + 1)) >= vertices)
-          throw InputError(path, "line " + std::to_string(line_no),
-                           "a relative index within the " + std::to_string(vertices) +
-                               " vertices before it, got " + w);
-        if (v > 0) refs.emplace_back(line_no, v);
-      }
-      if (corners >= 3) triangles += corners - 2;
-      if (triangles > kMaxMeshTriangles)
-        throw InputError(path, "line " + std::to_string(line_no),
-                         "at most " + std::to_string(kMaxMeshTriangles) + " triangles");
+    std::string key;
+    if (!(ls >> key)) continue;
+    std::vector<std::string> w;
+    for (std::string x; ls >> x;) w.push_back(x);
+    auto fail = [&](const std::string& expected) {
+      return InputError(path, "line " + std::to_string(line_no), expected);
+    };
+    const int kind = key == "v" ? 0 : key == "vt" ? 1 : key == "vn" ? 2 : -1;
+    if (kind >= 0) {
+      const bool ok = kind == 0   ? w.size() == 3 || w.size() == 4 || w.size() == 6
+                      : kind == 1 ? w.size() >= 1 && w.size() <= 3
+                                  : w.size() == 3;
+      if (!ok ||
+          !std::all_of(w.begin(), w.end(), [](const std::string& x) { return is_decimal(x); }))
+        throw fail("'" + key + "' and its finite decimal numbers (v: 3, 4 or 6; vt: 1-3; vn: 3)");
+      if (++count[kind] > kMaxMeshVertices)
+        throw fail("at most " + std::to_string(kMaxMeshVertices) + " vertices");
+      continue;
     }
+    if (key != "f" && key != "l" && key != "p") continue;
+    if (w.empty()) throw fail("'" + key + "' with vertex indices");
+    for (const std::string& corner : w) {
+      // v, v/vt, v//vn or v/vt/vn: integers, non-zero, negative ones relative to what is before.
+      std::size_t from = 0;
+      for (int part = 0; part < 3 && from <= corner.size(); ++part) {
+        const std::size_t slash = std::min(corner.find('/', from), corner.size());
+        const std::string num = corner.substr(from, slash - from);
+        from = slash + 1;
+        if (num.empty() && part > 0) continue;
+        const bool digits =
+            !num.empty() && num.size() <= 12 &&
+            num.find_first_not_of("0123456789", num[0] == '-') == std::string::npos && num != "-";
+        const long long v = digits ? std::stoll(num) : 0;
+        if (v == 0)
+          throw fail("indices v[/vt][/vn] (1-based, or negative: relative), got '" + corner + "'");
+        if (v < 0 && static_cast<std::uint64_t>(-v) > count[part])
+          throw fail("a relative index within the " + std::to_string(count[part]) +
+                     " elements before it, got '" + corner + "'");
+        if (v > 0) refs.push_back({line_no, part, v});
+        if (slash == corner.size()) break;
+        if (part == 2) throw fail("at most three indices a corner, got '" + corner + "'");
+      }
+    }
+    if (key == "f" && w.size() >= 3) triangles += w.size() - 2;
+    if (triangles > kMaxMeshTriangles)
+      throw fail("at most " + std::to_string(kMaxMeshTriangles) + " triangles");
   }
-  for (const auto& [line, v] : refs)
-    if (static_cast<std::uint64_t>(v) > vertices)
-      throw InputError(path, "line " + std::to_string(line),
-                       "vertex indices up to the file's " + std::to_string(vertices) +
-                           " vertices, got " + std::to_string(v));
+  for (const Ref& r : refs)
+    if (static_cast<std::uint64_t>(r.index) > count[r.kind])
+      throw InputError(path, "line " + std::to_string(r.line),
+                       std::string("indices up to the file's ") + std::to_string(count[r.kind]) +
+                           (r.kind == 0   ? " vertices"
+                            : r.kind == 1 ? " texture coordinates"
+                                          : " normals") +
+                           ", got " + std::to_string(r.index));
 }
 
 // Exact-coordinate key for joining duplicate vertices (STL stores every triangle's corners).

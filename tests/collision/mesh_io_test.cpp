@@ -334,7 +334,21 @@ TEST_F(MeshIo, ObjIndicesAndCountsAreChecked) {
   // From bytes, as the fuzz target reads them: the same checks, the given name in the error.
   const std::string text = v + "f 1 2 9\n";
   expect_input_error([&] { load_mesh_bytes(text, "obj", "in-memory.obj"); }, "in-memory.obj",
-                     "vertex indices");
+                     "3 vertices, got 9");
+  // From the fuzzer (assimp threw on an index out of range and leaked): NUL bytes that end a line
+  // for one reader and not the other, a vertex of one number, a normal index with no normals.
+  const struct {
+    std::string text;
+    const char* expected;
+  } leaks[] = {
+      {v + std::string("f 1 2 3\0\0f 1 2 3\n", 20), "control characters"},
+      {v + "v -00\nf 1 2 3\n", "line 4"},
+      {v + "f 1//1 2//1 3//1\n", "0 normals, got 1"},
+  };
+  for (const auto& c : leaks) {
+    write_bytes(p, c.text);
+    expect_input_error([&] { load_mesh(p); }, p, c.expected);
+  }
 }
 
 TEST_F(MeshIo, BadScaleAndUnwritablePath) {
