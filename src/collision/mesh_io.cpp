@@ -459,11 +459,21 @@ void check_obj(std::span<const char> bytes, const std::string& path) {
   for (std::size_t at = 0; at < all.size();) {
     std::size_t nl = all.find('\n', at);
     if (nl == std::string_view::npos) nl = all.size();
-    std::istringstream ls{std::string(all.substr(at, nl - at))};
+    const std::string_view text = all.substr(at, nl - at);
+    std::istringstream ls{std::string(text)};
     at = nl + 1;
     ++line_no;
     std::string key;
     if (!(ls >> key)) continue;
+    // assimp dispatches on a line's first character: any line starting with f, l or p is read as
+    // indices (an "f" followed by other bytes made it read past its buffer), one starting with v
+    // as a vertex kind.
+    if ((std::strchr("flpv", key[0]) != nullptr && text[0] != key[0]) ||
+        (std::strchr("flp", key[0]) != nullptr && key.size() > 1) ||
+        (key[0] == 'v' && key != "v" && key != "vt" && key != "vn"))
+      throw InputError(path, "line " + std::to_string(line_no),
+                       "an OBJ keyword (v, vt, vn, f, l, p, ...) at the start of the line, got '" +
+                           key.substr(0, 20) + "'");
     std::vector<std::string> w;
     for (std::string x; ls >> x;) w.push_back(x);
     auto fail = [&](const std::string& expected) {
@@ -490,7 +500,7 @@ void check_obj(std::span<const char> bytes, const std::string& path) {
         const std::size_t slash = std::min(corner.find('/', from), corner.size());
         const std::string num = corner.substr(from, slash - from);
         from = slash + 1;
-        if (num.empty() && part > 0) continue;
+        if (num.empty() && part == 1 && slash < corner.size()) continue;  // v//vn
         const bool digits =
             !num.empty() && num.size() <= 12 &&
             num.find_first_not_of("0123456789", num[0] == '-') == std::string::npos && num != "-";

@@ -344,6 +344,10 @@ TEST_F(MeshIo, ObjIndicesAndCountsAreChecked) {
       {v + std::string("f 1 2 3\0\0f 1 2 3\n", 20), "control characters"},
       {v + "v -00\nf 1 2 3\n", "line 4"},
       {v + "f 1//1 2//1 3//1\n", "0 normals, got 1"},
+      // A heap overflow inside assimp: a line "f" and other bytes, a corner ending in '/'.
+      {v + "f\xff\xfb 1 2 3\n", "OBJ keyword"},
+      {v + "f 1 2 3/", "got '3/'"},
+      {v + " f 1 2 3\n", "start of the line"},
   };
   for (const auto& c : leaks) {
     write_bytes(p, c.text);
