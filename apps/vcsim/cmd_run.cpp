@@ -127,8 +127,10 @@ bool has_balloon(const Scenario& sc, const ScriptedTimeline& tl) {
 int cmd_run(const RunOptions& o) {
   const fs::path file = find_scenario(o.scenario, "run", "SCENARIO");
   Scenario sc = load_scenario(file);
-  if (o.time_limit_s != 0.0)
+  if (o.time_limit_s != 0.0) {
     sc.time_limit = require_in_range(o.time_limit_s, 0.0, 3600.0, "run", "--time-limit");
+    check_run_steps(sc.dt, sc.time_limit, "run", "--time-limit");
+  }
   scenario_pose(sc);  // a bad C-arm setting fails before the scene is built
   std::optional<ThreadLimit> threads;
   if (o.threads != 0)

@@ -7,6 +7,7 @@
 
 #include "vcsim/collision.h"
 
+#include <cctype>
 #include <cstdint>
 #include <optional>
 #include <span>
@@ -106,8 +107,15 @@ struct OpenEnd {
 };
 std::vector<OpenEnd> open_ends(const VesselTree& tree);
 
-// Checks names, topology, point and radius arrays, lesions, access and target; throws InputError
-// naming `source` and the offending field.
+// Limits of a vessel tree (docs/anatomy.md), checked by validate_tree: its centrelines fit in a
+// box of kMaxTreeExtent a side (a body is under 1 m from groin to heart), and its lumen meshed at
+// the default voxel sizes would have at most kMaxLumenTriangles triangles, estimated from the
+// wall's area before meshing (a branch 42 m long built 4.7 M triangles in a minute and 1.6 GB).
+inline constexpr double kMaxTreeExtent = 2.0;            // m
+inline constexpr double kMaxLumenTriangles = 2'000'000;  // estimated, before simplification
+
+// Checks names, topology, point and radius arrays, lesions, access and target, and the limits
+// above; throws InputError naming `source` and the offending field.
 void validate_tree(const VesselTree& tree, const std::string& source);
 
 // JSON format (data/anatomy/*.json, docs/anatomy.md): units in key names, converted at load.
@@ -224,6 +232,10 @@ struct LumenSettings {
   std::string cache_dir;  // empty: $XDG_CACHE_HOME/vcsim/anatomy or ~/.cache/vcsim/anatomy
 };
 
+// The triangles marching tetrahedra would make of the tree's wall at these voxel sizes (its
+// swept area over the voxel's square, twice): what build_lumen refuses above kMaxLumenTriangles.
+double estimated_lumen_triangles(const VesselTree& tree, const LumenSettings& st);
+
 struct Lumen {
   TriangleMesh mesh;                   // the lumen wall, normals into the lumen (lesions applied)
   std::vector<Vec3> healthy_vertices;  // (nv) the same vertices without lesions, m
@@ -289,6 +301,9 @@ Lumen import_lumen(const std::string& mesh_path, const VesselTree& centrelines,
 // Reads the paths of a SimVascular .pth file (XML, coordinates in `unit_scale` m per unit) as
 // segments without parents; radii are left empty for measure_radii_on_mesh.
 VesselTree load_pth_paths(const std::string& path, double unit_scale = 1e-3);
+// The same from the file's text; `source` names it in errors.
+VesselTree parse_pth_paths(const std::string& text, const std::string& source,
+                           double unit_scale = 1e-3);
 // Fills empty radii from the mesh (closest-wall distance), links each segment to the segment
 // whose lumen holds its first point, and validates the tree.
 void measure_radii_on_mesh(VesselTree& tree, const TriangleMesh& mesh, const std::string& source);
@@ -306,7 +321,13 @@ VesselTree load_mesh_centrelines(const std::string& centrelines_path, const std:
 VesselTree centrelines_from_mesh(const TriangleMesh& mesh, const Vec3& inlet_near,
                                  const std::string& source, double band = 0.0);
 // Is `path` a lumen mesh file (.stl, .obj, .ply, any case)?
-bool is_mesh_file(const std::string& path);
+inline bool is_mesh_file(std::string_view path) {
+  const std::size_t dot = path.rfind('.');
+  if (dot == std::string_view::npos || path.size() - dot != 4) return false;
+  std::string e(path.substr(dot));
+  for (char& c : e) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return e == ".stl" || e == ".obj" || e == ".ply";
+}
 
 // ---------------------------------------------------------------------------------------------
 // Cardiac and respiratory motion

@@ -60,6 +60,11 @@ struct CommandLimits {
   double max_rotation_deg = 36000.0;   // a hundred turns
   double max_speed_mm_s = 1000.0;
   double max_spin_deg_s = 36000.0;
+  // What the drive at the sheath follows (Sheath::max_speed 0.5 m/s and max_spin 30 rad/s in
+  // vcsim/solver.h): a timeline asking for more, in a velocity keyframe or between two position
+  // keyframes, is refused at load rather than capped silently in the step.
+  double drive_speed_mm_s = 500.0;
+  double drive_spin_deg_s = 1718.8733853924696;  // 30 rad/s
   double max_balloon_atm = 30.0;   // above any rated burst pressure (clinical.md: 14-18)
   double max_syringe_ml_s = 30.0;  // magnitude; hand injection is about 2 ml/s
 

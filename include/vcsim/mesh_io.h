@@ -3,6 +3,8 @@
 
 #include "vcsim/collision.h"
 
+#include <cstdint>
+#include <span>
 #include <string>
 
 namespace vcsim {
@@ -17,6 +19,18 @@ struct MeshLoadOptions {
 // coordinates or an unknown extension throw InputError naming the path and what was expected.
 TriangleMesh load_mesh(const std::string& path, const MeshLoadOptions& options = {},
                        MeshReport* report = nullptr);
+// The same from the file's bytes; `ext` is the format ("stl", "obj" or "ply") and `source` names
+// the file in errors.
+TriangleMesh load_mesh_bytes(std::span<const char> bytes, const std::string& ext,
+                             const std::string& source, const MeshLoadOptions& options = {},
+                             MeshReport* report = nullptr);
+
+// Limits of a mesh file (docs/collision.md), checked on its bytes before it is parsed: its size,
+// and the triangles and vertices its header or lines declare (polygons counted as the triangles
+// they become). A file beyond them is refused, never read into memory in full.
+inline constexpr std::uint64_t kMaxMeshFileBytes = 1ull << 30;  // 1 GiB
+inline constexpr std::uint64_t kMaxMeshTriangles = 2'000'000;
+inline constexpr std::uint64_t kMaxMeshVertices = 3 * kMaxMeshTriangles;
 
 // Writers. `unit_scale` is metres per file unit as for loading (1e-3 writes millimetres), so
 // the same value round-trips. Throw InputError if the file cannot be written.

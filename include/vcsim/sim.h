@@ -156,6 +156,15 @@ struct FeedbackSettings {
   double cutoff_hz = 0.0;  // first-order low-pass of force and torque; 0: the raw signal
 };
 
+// Limits of a run, enforced when a scenario is read (docs/scenarios.md): the smallest physics
+// step, and the most steps a run may take (time limit / dt): a step of 1e-8 s ran for days and one
+// of 1e-10 s exhausted memory (the contrast history keeps 2 s of steps).
+inline constexpr double kMinScenarioDt = 1e-5;  // s (0.01 ms)
+inline constexpr double kMaxRunSteps = 3.6e7;   // an hour at 0.1 ms
+// Throws InputError(source, field) when time_limit / dt is above kMaxRunSteps.
+void check_run_steps(double dt, double time_limit, const std::string& source,
+                     const std::string& field);
+
 struct Scenario {
   std::string name;
   std::string description;

@@ -393,6 +393,12 @@ Lumen build_lumen(const VesselTree& tree, const LumenSettings& st) {
                        "expected radii of at least 2 voxels (" + std::to_string(2e3 * h) +
                            " mm); lower the LumenSettings voxel sizes");
   }
+  if (const double n = estimated_lumen_triangles(tree, st); n > kMaxLumenTriangles)
+    throw InputError("build_lumen", "LumenSettings",
+                     "expected a lumen of at most " +
+                         std::to_string(static_cast<long long>(kMaxLumenTriangles)) +
+                         " triangles; these voxel sizes would make about " +
+                         std::to_string(static_cast<long long>(n)));
   Lumen lu;
   const std::uint64_t key = cache_key(tree, st);
   std::filesystem::path file;

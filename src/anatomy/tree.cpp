@@ -476,6 +476,31 @@ void validate_tree(const VesselTree& tree, const std::string& source) {
                          "expected the centreline to leave the lumen of parent '" + par.name + "'");
     }
   }
+  // The extent: the first point (in file order) that stretches the box of the points before it
+  // beyond kMaxTreeExtent is named.
+  Vec3 lo = tree.segments[0].points[0], hi = lo;
+  for (std::size_t i = 0; i < tree.segments.size(); ++i) {
+    const VesselSegment& seg = tree.segments[i];
+    for (std::size_t k = 0; k < seg.points.size(); ++k) {
+      lo = lo.cwiseMin(seg.points[k]);
+      hi = hi.cwiseMax(seg.points[k]);
+      if ((hi - lo).maxCoeff() > kMaxTreeExtent)
+        throw InputError(source, idx(idx("segments", i) + ".points_mm", k),
+                         "expected the centrelines within a box of " +
+                             std::to_string(static_cast<int>(kMaxTreeExtent * 1e3)) +
+                             " mm a side; this point makes it " +
+                             std::to_string(static_cast<long long>((hi - lo).maxCoeff() * 1e3)) +
+                             " mm");
+    }
+  }
+  const double triangles = estimated_lumen_triangles(tree, LumenSettings{});
+  if (triangles > kMaxLumenTriangles)
+    throw InputError(source, "segments",
+                     "expected a lumen of at most " +
+                         std::to_string(static_cast<long long>(kMaxLumenTriangles)) +
+                         " triangles at the default voxel sizes; these vessels' walls would take "
+                         "about " +
+                         std::to_string(static_cast<long long>(triangles)));
   for (std::size_t i = 0; i < tree.lesions.size(); ++i) {
     const Lesion& l = tree.lesions[i];
     const std::string f = idx("lesions", i);
@@ -514,6 +539,19 @@ void validate_tree(const VesselTree& tree, const std::string& source) {
       throw InputError(source, "heart.axis",
                        "expected non-zero axis and anterior vectors, not parallel");
   }
+}
+
+double estimated_lumen_triangles(const VesselTree& tree, const LumenSettings& st) {
+  double n = 0.0;
+  for (const VesselSegment& seg : tree.segments) {
+    const double h = seg.kind == VesselKind::kCoronary ? st.fine_voxel : st.coarse_voxel;
+    double area = 0.0;  // the wall swept along the centreline (a frustum per piece)
+    for (std::size_t k = 0; k + 1 < seg.points.size() && k + 1 < seg.radii.size(); ++k)
+      area += (seg.points[k + 1] - seg.points[k]).norm() * std::numbers::pi *
+              (seg.radii[k] + seg.radii[k + 1]);
+    n += 2.0 * area / (h * h);
+  }
+  return n;
 }
 
 }  // namespace vcsim

@@ -1,5 +1,6 @@
 #include "json_fields.h"
 
+#include <cmath>
 #include <vector>
 
 namespace vcsim::internal {
@@ -77,8 +78,8 @@ class Checker final : public nlohmann::json_sax<Json> {
  private:
   struct Level {
     bool array = false;
-    std::size_t count = 0;                  // elements begun so far (arrays)
-    const std::string* key = nullptr;       // the key being read (objects)
+    std::size_t count = 0;             // elements begun so far (arrays)
+    const std::string* key = nullptr;  // the key being read (objects)
     std::set<std::string, std::less<>> keys;
   };
 
@@ -236,12 +237,19 @@ void JsonFields::finish() const {
 }
 
 double JsonFields::as_number(const Json& v, const std::string& f) const {
-  if (!v.is_number()) throw InputError(source_, f, cat("expected a number, got ", describe_json(v)));
-  return require_finite(v.get<double>(), source_, f);
+  if (!v.is_number())
+    throw InputError(source_, f, cat("expected a number, got ", describe_json(v)));
+  const double x = require_finite(v.get<double>(), source_, f);
+  if (std::abs(x) > kMaxJsonNumber)
+    throw InputError(
+        source_, f,
+        cat("expected a number within +-1e18 (finite in any unit), got ", describe_json(v)));
+  return x;
 }
 
 std::string JsonFields::as_string(const Json& v, const std::string& f) const {
-  if (!v.is_string()) throw InputError(source_, f, cat("expected a string, got ", describe_json(v)));
+  if (!v.is_string())
+    throw InputError(source_, f, cat("expected a string, got ", describe_json(v)));
   return v.get<std::string>();
 }
 

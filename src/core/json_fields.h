@@ -23,6 +23,12 @@ using Json = nlohmann::json;
 // documents are refused while parsing, so nothing that walks a parsed value recurses far.
 inline constexpr std::size_t kMaxJsonDepth = 64;
 
+// Largest magnitude of a number a file may give (as_number refuses larger ones, naming the field).
+// Far above any quantity vcsim reads in the units of its keys (the largest, a seed, stays below
+// 2^53 ~ 9e15), and small enough that no unit conversion (factors up to 101325, atm to Pa) nor a
+// product of two such values overflows to infinity: 1e307 per cm would be inf per metre.
+inline constexpr double kMaxJsonNumber = 1e18;
+
 // Concatenates strings with += (GCC 12 warns falsely on "literal" + std::string).
 template <typename... A>
 std::string cat(const A&... parts) {
@@ -40,8 +46,8 @@ std::string describe_json(const Json& v);
 // one object (the key's field path). No nlohmann exception leaves this function.
 Json parse_json_text(std::string_view text, const std::string& source);
 
-std::string join_path(const std::string& parent, std::string_view key);    // "a.b"
-std::string index_path(const std::string& parent, std::size_t i);          // "a[2]"
+std::string join_path(const std::string& parent, std::string_view key);  // "a.b"
+std::string index_path(const std::string& parent, std::size_t i);        // "a[2]"
 
 class JsonFields {
  public:
@@ -101,6 +107,7 @@ class JsonFields {
   // Rejects the first key that was never looked up.
   void finish() const;
 
+  // A number within +-kMaxJsonNumber (finite whatever unit it is converted to).
   double as_number(const Json& v, const std::string& f) const;
   std::string as_string(const Json& v, const std::string& f) const;
 

@@ -122,6 +122,22 @@ InstrumentChange parse_added(JsonFields& a) {
   return c;
 }
 
+// The speed (mm/s) and spin (deg/s) a keyframe asks of the drive: its own in velocity mode, or
+// in position mode the rate from the instrument's previous position keyframe (`from`, "" when
+// there is none), interpolated linearly. Beyond what the drive follows they are refused here: the
+// step would cap them silently.
+void check_drive(JsonFields& c, double speed, double spin, const std::string& from,
+                 const CommandLimits& limits) {
+  if (std::abs(speed) > limits.drive_speed_mm_s)
+    c.fail("translation_mm",
+           cat("expected a speed the drive follows, within +-", num(limits.drive_speed_mm_s),
+               " mm/s, got ", num(speed), " mm/s", from));
+  if (std::abs(spin) > limits.drive_spin_deg_s)
+    c.fail("rotation_deg",
+           cat("expected a spin the drive follows, within +-", num(limits.drive_spin_deg_s),
+               " deg/s, got ", num(spin), " deg/s", from));
+}
+
 }  // namespace
 
 ScriptedTimeline ScriptedTimeline::parse(std::string_view json_text, const std::string& source,
@@ -167,6 +183,15 @@ ScriptedTimeline ScriptedTimeline::parse(std::string_view json_text, const std::
           const bool tr = why.find("translation") != std::string::npos ||
                           why.find("speed") != std::string::npos;
           c.fail(tr ? "translation_mm" : "rotation_deg", why);
+        }
+        const std::vector<Key>& before = tracks[name];
+        if (key.mode == InstrumentCommand::Mode::kVelocity) {
+          check_drive(c, key.translation, key.rotation, "", limits);
+        } else if (!before.empty() && before.back().mode == InstrumentCommand::Mode::kPosition) {
+          const Key& a = before.back();
+          check_drive(c, (key.translation - a.translation) / (t - a.t),
+                      (key.rotation - a.rotation) / (t - a.t),
+                      cat(" from the previous keyframe at ", num(a.t), " s"), limits);
         }
         tracks[name].push_back(key);
       }

@@ -305,6 +305,9 @@ CommandRecording CommandRecording::parse(std::string_view json_text, const std::
       c.drive[i].rotation = number(k + 2);
     }
     const auto k = static_cast<std::int64_t>(count);
+    if (k > static_cast<std::int64_t>(9.0e15) - total)  // the sum must not overflow
+      throw InputError(source, internal::index_path(field, 0),
+                       "expected at most 9e15 steps in all the runs");
     if (next_exchange < rec.exchanges_.size() && rec.exchanges_[next_exchange].step < total + k)
       throw InputError(
           source, field,

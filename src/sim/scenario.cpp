@@ -2,6 +2,7 @@
 // to SI at load; unknown keys are refused so that a typo is not silently ignored.
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
@@ -15,8 +16,16 @@ namespace vcsim {
 
 namespace {
 
+using internal::cat;
 using internal::JsonFields;
 using Json = internal::Json;
+
+// A number as a message shows it (%g: 1e-05, 3.6e+07, 0.5).
+std::string num(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%g", v);
+  return b;
+}
 
 // An instrument as instruments[] declares it (and an autopilot's add phase).
 ScenarioInstrument parse_instrument(JsonFields& g) {
@@ -241,6 +250,14 @@ ScenarioInstrument to_scenario_instrument(const InstrumentChange& c) {
   return si;
 }
 
+void check_run_steps(double dt, double time_limit, const std::string& source,
+                     const std::string& field) {
+  if (time_limit / dt > kMaxRunSteps * (1.0 + 1e-12))  // 3600 s / 0.1 ms is allowed
+    throw InputError(source, field,
+                     cat("expected at most ", num(kMaxRunSteps), " steps (time limit / dt), got ",
+                         num(time_limit), " s / ", num(dt * 1e3), " ms = ", num(time_limit / dt)));
+}
+
 Scenario parse_scenario(std::string_view text, const std::string& src,
                         const std::filesystem::path& base_dir) {
   const Json j = internal::parse_json_text(text, src);
@@ -283,7 +300,11 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
     sc.motion.validate(src + ": motion");
   }
   sc.dt = f.in_range_or("dt_ms", 0.0, 1.0, 1.0) * 1e-3;
+  if (sc.dt < kMinScenarioDt * (1.0 - 1e-12))  // 0.01 ms itself (rounded) is allowed
+    f.fail("dt_ms", cat("expected a step of at least ", num(kMinScenarioDt * 1e3), " ms, got ",
+                        num(sc.dt * 1e3)));
   sc.time_limit = f.in_range_or("time_limit_s", 0.0, 3600.0, 60.0);
+  check_run_steps(sc.dt, sc.time_limit, src, f.has("time_limit_s") ? "time_limit_s" : "dt_ms");
   if (f.has("seed")) {
     const double seed = f.number("seed");
     if (seed < 0 || seed > 9007199254740992.0 || seed != std::floor(seed))

@@ -247,6 +247,114 @@ TEST_F(MeshIo, GarbageAndBrokenStructure) {
   expect_input_error([&] { load_mesh(ascii_open); }, ascii_open, "endsolid");
 }
 
+// Reproducers from fuzzing: a binary PLY with a scalar after the face list aborted inside assimp;
+// one declaring 2^64-1 entries hung. Both, and the other headers vcsim does not read, are refused
+// naming the file before assimp sees them; so are polygons beyond the triangle limit.
+TEST_F(MeshIo, PlyHeadersBeyondWhatIsReadAreRefused) {
+  const std::string vertices =
+      "element vertex 3\nproperty float x\nproperty float y\nproperty float z\n";
+  std::string tri;  // three vertices (floats) and the face 0 1 2 (uchar count, int indices)
+  for (float f : {0.f, 0.f, 0.f, 1.f, 0.f, 0.f, 0.f, 1.f, 0.f})
+    tri.append(reinterpret_cast<const char*>(&f), 4);
+  tri += '\3';
+  for (int i : {0, 1, 2}) tri.append(reinterpret_cast<const char*>(&i), 4);
+  const std::string head = "ply\nformat binary_little_endian 1.0\n" + vertices;
+  const std::string list = "property list uchar int vertex_indices\n";
+  const std::string p = path("bad.ply");
+  struct Case {
+    std::string bytes;
+    const char* expected;
+  };
+  const Case cases[] = {
+      {head + "element face 1\n" + list + "property uchar flags\nend_header\n" + tri + '\0',
+       "face properties"},
+      {head + "element face 1\nproperty uchar flags\n" + list + "end_header\n" + '\0' + tri,
+       "face properties"},
+      {"ply\nformat binary_little_endian 1.0\nelement vertex 18446744073709551615\n"
+       "property float x\nproperty float y\nproperty float z\nelement face 1\n" +
+           list + "end_header\n" + tri,
+       "10^12"},
+      {"ply\nformat binary_little_endian 1.0\nelement vertex 999999999999\n"
+       "property float x\nproperty float y\nproperty float z\nelement face 1\n" +
+           list + "end_header\n" + tri,
+       "at most 6000000 vertices"},
+      {"ply\nformat binary_little_endian 1.0\nelement vertex 5000000\n"
+       "property float x\nproperty float y\nproperty float z\nelement face 1\n" +
+           list + "end_header\n" + tri,
+       "cannot hold"},
+      {head + "element empty 99999999999\nelement face 1\n" + list + "end_header\n" + tri,
+       "'vertex' element then a 'face' element"},
+      {head + "element face 1\nproperty list float int vertex_indices\nend_header\n" + tri,
+       "integer PLY property type"},
+      {"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+       "property float y\nelement face 1\n" +
+           list + "end_header\n" + tri,
+       "property 'z'"},
+      {head + "element face 1\n" + list + "end_header\n" + tri + "extra", "5 more bytes"},
+      // The fuzzer's hang: a header ending "end_headero" (assimp looked for its end for ever).
+      {head + "element face 1\n" + list + "end_headero\n" + tri, "header line 9"},
+      {head + "element face 1\n" + list + "unknown\nend_header\n" + tri, "header line 9"},
+  };
+  for (const Case& c : cases) {
+    write_bytes(p, c.bytes);
+    expect_input_error([&] { load_mesh(p); }, p, c.expected);
+  }
+  // The good triangle loads (the cases above differ from it in one thing each).
+  write_bytes(p, head + "element face 1\n" + list + "end_header\n" + tri);
+  EXPECT_EQ(load_mesh(p).num_triangles(), 1);
+  // One polygon of 2,000,003 corners: 2,000,001 triangles, one beyond the limit.
+  std::string big = head + "element face 1\nproperty list uint uchar vertex_indices\nend_header\n";
+  big.append(tri, 0, 36);
+  const std::uint32_t n = kMaxMeshTriangles + 3;
+  big.append(reinterpret_cast<const char*>(&n), 4);
+  big.append(n, '\0');
+  write_bytes(p, big);
+  expect_input_error([&] { load_mesh(p); }, p, "at most 2000000 triangles");
+}
+
+TEST_F(MeshIo, ObjIndicesAndCountsAreChecked) {
+  const std::string p = path("bad.obj");
+  const std::string v = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+  const struct {
+    std::string text;
+    const char* expected;
+  } cases[] = {
+      {v + "f 1 2 0\n", "line 4"},
+      {v + "f 1 2 4\n", "up to the file's 3 vertices, got 4"},
+      {v + "f -1 -2 -4\n", "relative index"},
+      {v + "f 1 2 x\n", "got 'x'"},
+      {v + "f 1 2 99999999999999999999999\n", "line 4"},
+  };
+  for (const auto& c : cases) {
+    write_bytes(p, c.text);
+    expect_input_error([&] { load_mesh(p); }, p, c.expected);
+  }
+  write_bytes(p, v + "f -3 -2 -1\n");
+  EXPECT_EQ(load_mesh(p).num_triangles(), 1);
+  // From bytes, as the fuzz target reads them: the same checks, the given name in the error.
+  const std::string text = v + "f 1 2 9\n";
+  expect_input_error([&] { load_mesh_bytes(text, "obj", "in-memory.obj"); }, "in-memory.obj",
+                     "3 vertices, got 9");
+  // From the fuzzer (assimp threw on an index out of range and leaked): NUL bytes that end a line
+  // for one reader and not the other, a vertex of one number, a normal index with no normals.
+  const struct {
+    std::string text;
+    const char* expected;
+  } leaks[] = {
+      {v + std::string("f 1 2 3\0\0f 1 2 3\n", 17), "control characters"},
+      {v + "v -00\nf 1 2 3\n", "line 4"},
+      {v + "f 1//1 2//1 3//1\n", "0 normals, got 1"},
+      // A heap overflow inside assimp: a line "f" and other bytes, a corner ending in '/'.
+      {v + "f\xff\xfb 1 2 3\n", "OBJ keyword"},
+      {v + "f 1 2 3/", "got '3/'"},
+      {v + " f 1 2 3\n", "start of the line"},
+  };
+  for (const auto& c : leaks) {
+    write_bytes(p, c.text);
+    expect_input_error([&] { load_mesh(p); }, p, c.expected);
+  }
+}
+
 TEST_F(MeshIo, BadScaleAndUnwritablePath) {
   const std::string p = path("tube.obj");
   write_obj(tube, p);

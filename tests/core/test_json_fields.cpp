@@ -64,6 +64,26 @@ TEST(JsonReader, NumbersBeyondADoubleAreInputErrors) {
   EXPECT_EQ(error_field("[1.7976931348623157e308, 18446744073709551616]"), "accepted");
 }
 
+// A finite number that a unit conversion would take to infinity (1e307 per cm is inf per metre,
+// written to metrics.json as null) is refused by as_number, naming its field.
+TEST(JsonReader, NumbersThatCouldOverflowInAUnitAreRefused) {
+  const Json j = parse_json_text(R"({"a": 1e307, "b": -2e18, "c": 1e18, "d": 9007199254740992,
+                                     "e": 18446744073709551615})",
+                                 "in.json");
+  JsonFields f(j, "in.json", "");
+  for (const char* key : {"a", "b", "e"}) {
+    try {
+      f.number(key);
+      ADD_FAILURE() << key << " accepted";
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.field(), key);
+      EXPECT_NE(std::string(e.what()).find("within +-1e18"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_EQ(f.number("c"), 1e18);
+  EXPECT_EQ(f.number("d"), 9007199254740992.0);  // 2^53, the largest seed
+}
+
 TEST(JsonReader, SyntaxErrorsAreInputErrors) {
   for (const char* text : {"", "{", "{\"a\": }", "[1, 2", "nul", "{\"a\": 1} x", "\"\xff\""}) {
     EXPECT_EQ(error_field(text), "json") << text;

@@ -97,7 +97,8 @@ TEST(Recording, TheFileReadsBackToTheSameBits) {
   for (int k = 0; k < 500; ++k) {
     for (auto& d : c.drive) {
       d.mode = gen() % 2 ? DriveCommand::Mode::kVelocity : DriveCommand::Mode::kPosition;
-      d.translation = u(gen) * std::pow(10.0, static_cast<double>(gen() % 40) - 20.0);
+      // Magnitudes from 1e-20 to 1e17: every vcsim file keeps numbers within +-1e18.
+      d.translation = u(gen) * std::pow(10.0, static_cast<double>(gen() % 38) - 20.0);
       d.rotation = gen() % 5 == 0 ? -0.0 : u(gen) * 1e3;
     }
     c.syringe_flow = u(gen) * 1e-6;

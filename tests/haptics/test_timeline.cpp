@@ -13,6 +13,7 @@
 
 #include "vcsim/core.h"
 #include "vcsim/haptics.h"
+#include "vcsim/solver.h"
 
 #include "counting_new.h"
 
@@ -20,8 +21,10 @@ using vcsim::test::g_allocations;
 
 namespace {
 
+using vcsim::CommandLimits;
 using vcsim::DriveCommand;
 using vcsim::ScriptedTimeline;
+using vcsim::Sheath;
 using vcsim::StepCommands;
 using Mode = DriveCommand::Mode;
 constexpr double kMm = 1e-3;
@@ -256,6 +259,48 @@ TEST(Timeline, ExchangesAreAskedForOnceInOrderAndRebound) {
   EXPECT_DOUBLE_EQ(s.drive[1].translation, 40 * kMm);
   // A name neither in the scene nor exchanged by the timeline is still refused.
   EXPECT_THROW(tl.bind(std::vector<std::string>{"old"}), vcsim::InputError);
+}
+
+// 1000 mm/s and 36,000 deg/s passed the plausibility limits and were then capped silently by the
+// drive (0.5 m/s, 30 rad/s at the sheath): now refused at load, naming the key and the limit,
+// whether asked for in velocity mode or between two position keyframes.
+TEST(Timeline, SpeedsBeyondTheDriveAreRefused) {
+  const std::string key = R"({"keyframes": [{"t_s": 0, "instruments": {"gw": )";
+  const struct {
+    std::string text;
+    const char* field;
+    const char* expected;
+  } cases[] = {
+      {key + R"({"mode": "velocity", "translation_mm": 1000, "rotation_deg": 0}}}]})",
+       "keyframes[0].instruments.gw.translation_mm", "within +-500 mm/s, got 1000"},
+      {key + R"({"mode": "velocity", "translation_mm": 0, "rotation_deg": -36000}}}]})",
+       "keyframes[0].instruments.gw.rotation_deg", "within +-1718.87 deg/s, got -36000"},
+      {key + R"({"translation_mm": 0, "rotation_deg": 0}}},
+          {"t_s": 0.1, "instruments": {"gw": {"translation_mm": 100, "rotation_deg": 0}}}]})",
+       "keyframes[1].instruments.gw.translation_mm", "got 1000 mm/s from the previous keyframe"},
+      {key + R"({"translation_mm": 0, "rotation_deg": 0}}},
+          {"t_s": 1, "instruments": {"gw": {"translation_mm": 10, "rotation_deg": 3600}}}]})",
+       "keyframes[1].instruments.gw.rotation_deg", "got 3600 deg/s"},
+  };
+  for (const auto& c : cases) {
+    const std::string err = error_of(c.text);
+    EXPECT_EQ(err.rfind(std::string(c.field) + " | scripts/push.json: " + c.field + ": ", 0), 0u)
+        << c.text << "\n -> " << err;
+    EXPECT_NE(err.find(c.expected), std::string::npos) << c.text << "\n -> " << err;
+  }
+  // At the drive's limits, and a jump after a velocity keyframe (not a rate the file states).
+  EXPECT_EQ(error_of(key + R"({"mode": "velocity", "translation_mm": -500, "rotation_deg": 1718}}},
+      {"t_s": 1, "instruments": {"gw": {"translation_mm": 900, "rotation_deg": 0}}},
+      {"t_s": 3, "instruments": {"gw": {"translation_mm": 0, "rotation_deg": 3437}}}]})"),
+            "");
+}
+
+// The drive limits the timeline checks are the sheath's, where the step applies them.
+TEST(Timeline, DriveLimitsAreTheSheaths) {
+  const CommandLimits lim;
+  const Sheath sh;
+  EXPECT_DOUBLE_EQ(lim.drive_speed_mm_s * kMm, sh.max_speed);
+  EXPECT_DOUBLE_EQ(lim.drive_spin_deg_s * kDeg, sh.max_spin);
 }
 
 // Nesting 100,000 deep (which overflowed the stack), a number beyond a double and a repeated key

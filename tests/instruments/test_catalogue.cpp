@@ -454,6 +454,15 @@ TEST(CatalogueErrors, HostileJsonIsAnInputError) {
   EXPECT_EQ(field_of(twice), "friction.lumen");
 }
 
+// 1e307 per cm is finite but infinite per metre (it came out as null in metrics.json, exit 0).
+TEST(CatalogueErrors, AValueThatOverflowsInSiUnitsNamesItsField) {
+  json doc = valid_wire();
+  doc["radiopacity"]["attenuation_60kev_per_cm"] = 1e307;
+  const std::string why = error_of(doc);
+  EXPECT_NE(why.find("radiopacity.attenuation_60kev_per_cm"), std::string::npos) << why;
+  EXPECT_NE(why.find("data/instruments/bad.json"), std::string::npos) << why;
+}
+
 TEST(CatalogueErrors, LoadingAFolderNamesTheBadFile) {
   std::string tag = "vcsim_cat_";
   tag += std::to_string(::getpid());

@@ -259,6 +259,25 @@ TEST(Snapshot, ARemovedBalloonIsCopiedWithoutNodes) {
   EXPECT_EQ(f.nodes.size(), 1u);
 }
 
+// The frame writer on a tree without a heart (a tube): it starts and films; and when its worker
+// cannot start (a size the renderer refuses), the constructor joins the worker before the error
+// leaves it (a joinable std::thread destroyed in the unwinding called std::terminate: exit 134).
+TEST(FrameRecorder, StartsWithoutAHeartAndFailsWithoutTerminating) {
+  test::TubeSpecs t;
+  const fs::path dir = scratch("recorder");
+  Simulator sim(test::tube_scenario(
+      dir, t, R"([{"name": "wire", "catalogue": "wire-014-floppy", "max_nodes": 64}])"));
+  ASSERT_FALSE(sim.model().tree.heart.has_value());
+  EXPECT_THROW(FrameRecorder(sim.model(), 8, BeamEnergy::k60keV, {}, dir), InputError);
+  {
+    FrameRecorder rec(sim.model(), 64, BeamEnergy::k60keV, {}, dir);
+    rec.push(snapshot(sim), CArmPose{});
+    rec.finish();
+  }
+  EXPECT_TRUE(fs::exists(dir / "frame_00000.png"));
+  fs::remove_all(dir);
+}
+
 // A frame copies what it needs of the procedure: the balloon's nodes, radii and pressure, the
 // stent crimped on the balloon then deployed at its rings on the vessel's axis, the openings.
 TEST(Snapshot, CopiesTheBalloonTheStentAndTheLesionsOpening) {

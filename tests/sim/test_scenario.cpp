@@ -229,6 +229,22 @@ TEST(Scenario, HostileJsonIsAnInputError) {
                "autopilot[0].goal.distance_mm");
 }
 
+// dt_ms 1e-5 ran for days and 1e-7 died of bad_alloc: a step below kMinScenarioDt, or more than
+// kMaxRunSteps steps before the time limit, is refused naming the key.
+TEST(Scenario, TinyStepsAndEndlessRunsAreRefused) {
+  const std::string head = "\"name\": \"t\"";
+  expect_error(edit(head, head + ", \"dt_ms\": 1e-5"), "dt_ms");
+  expect_error(edit(head, head + ", \"dt_ms\": 1e-7"), "dt_ms");
+  expect_error(edit(head, head + ", \"dt_ms\": 0.001"), "dt_ms");
+  // 3600 s at 0.05 ms is 7.2e7 steps; 3600 s at 0.1 ms is the limit itself.
+  expect_error(edit(head, head + ", \"dt_ms\": 0.05, \"time_limit_s\": 3600"), "time_limit_s");
+  EXPECT_NO_THROW(
+      parse_scenario(edit(head, head + ", \"dt_ms\": 0.1, \"time_limit_s\": 3600"), "ok.json"));
+  EXPECT_NO_THROW(parse_scenario(edit(head, head + ", \"dt_ms\": 0.01"), "ok.json"));
+  EXPECT_THROW(check_run_steps(1e-5, 1000.0, "run", "--time-limit"), InputError);
+  EXPECT_NO_THROW(check_run_steps(5e-4, 3600.0, "run", "--time-limit"));
+}
+
 TEST(Scenario, MissingFileIsAnInputError) {
   EXPECT_THROW(load_scenario("/nonexistent/scenario.json"), InputError);
 }
