@@ -246,6 +246,9 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
     input["messages_accepted"] = r.device.messages_accepted;
     input["messages_dropped"] = r.device.messages_dropped;
     input["feedback_sent"] = r.device.feedback_sent;
+    input["clients_refused"] = r.device.clients_refused;
+    input["messages_skipped"] = r.device.messages_skipped;
+    input["beyond_drive"] = r.device.beyond_drive;
   }
   if (r.realtime) {
     input["late_steps"] = r.loop.late_steps;
