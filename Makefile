@@ -2,7 +2,7 @@
 JOBS ?= $(shell nproc)
 WERROR ?= $(if $(CI),ON,OFF)
 
-.PHONY: all deps build build-asan run test test-release test-asan bench format clean
+.PHONY: all deps build build-asan run test test-release test-asan test-tsan bench format clean
 
 all: build
 
@@ -22,13 +22,19 @@ build-asan: deps
 run: build
 	@build/bin/vcsim run default --out out/default; s=$$?; [ $$s -eq 0 ] || [ $$s -eq 3 ]
 
-test: test-release test-asan
+test: test-release test-asan test-tsan
 
 test-release: build
 	ctest --preset release -j $(JOBS)
 
 test-asan: build-asan
 	ctest --preset asan -j $(JOBS)
+
+# ThreadSanitizer on the tests that use threads only (the tsan preset builds just those).
+test-tsan: deps
+	cmake --preset tsan -DVCSIM_WERROR=$(WERROR)
+	cmake --build --preset tsan -j $(JOBS)
+	ctest --preset tsan -j $(JOBS)
 
 bench: build
 	build/bin/vcsim_bench_rod --benchmark_min_time=0.2
@@ -41,4 +47,4 @@ format:
 	clang-format -i $$(git ls-files '*.cpp' '*.h')
 
 clean:
-	rm -rf build build-debug build-asan
+	rm -rf build build-debug build-asan build-tsan

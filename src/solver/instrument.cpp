@@ -9,6 +9,7 @@
 #include <cmath>
 
 #include "scratch.h"
+#include "tsan_tasks.h"
 
 namespace vcsim::internal {
 
@@ -596,9 +597,15 @@ void remove_coupling_bias(const Pair& cp, const Inst& in, const Inst& out, doubl
 template <class F>
 void for_each_active(std::span<Inst> insts, bool parallel, F&& f) {
   if (parallel) {
+#if defined(__SANITIZE_THREAD__)
+    tsan_chunks(insts.size(), 1, [&](std::size_t k, std::size_t) {
+      if (!insts[k].parked()) f(k);
+    });
+#else
     tbb::parallel_for(std::size_t{0}, insts.size(), [&](std::size_t k) {
       if (!insts[k].parked()) f(k);
     });
+#endif
   } else {
     for (std::size_t k = 0; k < insts.size(); ++k)
       if (!insts[k].parked()) f(k);
