@@ -8,13 +8,13 @@ bounded and generous (a loaded machine); nothing asserts on timing.
 """
 
 import json
+import math
 import os
 import re
 import signal
 import socket
 import struct
 import subprocess
-import tempfile
 import time
 from pathlib import Path
 
@@ -60,8 +60,6 @@ def sensor(device: str, values, version: int = 1) -> bytes:
 
 def transform(device: str, depth_mm: float, angle_deg: float) -> bytes:
     """TRANSFORM: the upper 3 x 4 of the pose, column by column, float32."""
-    import math
-
     c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
     cols = [c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, depth_mm]
     return message("TRANSFORM", device, struct.pack(">12f", *cols))
