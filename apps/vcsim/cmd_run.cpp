@@ -244,7 +244,7 @@ int cmd_run(const RunOptions& o) {
   loop_settings.end_time = report.end_time;
   loop_settings.realtime = report.realtime;
   loop_settings.stop = &stop_on_signal.flag();
-  loop_settings.stop_on_escape = o.stop_on_escape;
+  loop_settings.stop_on_escape = o.stop_on_escape || sc.stop_on_escape;
   const double loop0 = now_us();
   report.loop = run_loop(sim, input, loop_settings, &observers);
   if (device) device->stop();        // the connection closes with the run; the counts are final
@@ -331,7 +331,8 @@ void install(CLI::App& app, int& status) {
                   "(replayed by --replay to the same final state)");
   cmd->add_flag("--stop-on-escape", o->stop_on_escape,
                 "End the run at the first step with a node outside the vessel (behind the wall "
-                "or beyond an open end; exit status 4 either way)");
+                "or beyond an open end; exit status 4 either way; the scenario's "
+                "stop_on_escape does the same)");
   cmd->add_flag("--no-report", o->no_report,
                 "Do not write DIR/report.html (metrics.json, series.csv are written all the same)");
   cmd->callback([o, &status, cmd] {

@@ -166,7 +166,10 @@ struct Scenario {
   MotionSettings motion;
   double dt = 1e-3;          // s, physics step (1 kHz or faster)
   double time_limit = 60.0;  // s of simulated time before the run ends unfinished
-  std::uint64_t seed = 1;    // of the state's random generator (SimState::random)
+  // End the run at the first step with a node outside the vessel (physics.md 6.3), as `vcsim run
+  // --stop-on-escape` does.
+  bool stop_on_escape = false;
+  std::uint64_t seed = 1;  // of the state's random generator (SimState::random)
   // The introducer sheath's straight part inside the vessel from the access point (m; 0: none),
   // its lumen 0.2 mm wider than the widest instrument (physics.md 6.2).
   double sheath_length = 25e-3;

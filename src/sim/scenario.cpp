@@ -265,6 +265,7 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   }
   sc.dt = f.in_range_or("dt_ms", 0.0, 1.0, 1.0) * 1e-3;
   sc.time_limit = f.in_range_or("time_limit_s", 0.0, 3600.0, 60.0);
+  sc.stop_on_escape = f.boolean_or("stop_on_escape", false);
   if (f.has("seed")) {
     const double seed = f.number("seed");
     if (seed < 0 || seed > 9007199254740992.0 || seed != std::floor(seed))

@@ -84,7 +84,7 @@ TEST(RunCli, UnreachedTargetEndsWithAReport) {
 // No silent escape (physics.md 6.3): a straight tube open at its start, the access 190 mm along
 // it heading there, and a timeline pushing a 0.014" wire 210 mm in 2.1 s, out of the open start.
 // The escape is reported once on the console and in metrics.json, and the run exits with status
-// 4; with --stop-on-escape it ends at that step.
+// 4; with --stop-on-escape (or the scenario's stop_on_escape) it ends at that step.
 TEST(RunCli, AnEscapeIsReportedAndCanStopTheRun) {
   const fs::path d = scratch("escape");
   write(d / "tube.json", R"({"format": "vcsim-anatomy", "version": 1, "name": "tube",
@@ -100,11 +100,17 @@ TEST(RunCli, AnEscapeIsReportedAndCanStopTheRun) {
     "instruments": [{"name": "wire", "catalogue": "wire-014-floppy", "max_nodes": 160,
                      "tip_segment_mm": 1}],
     "input": {"type": "timeline", "file": "timeline.json"}})");
+  // The same scene stopping on it by the scenario's key.
+  std::string keyed = slurp(d / "s.json");
+  keyed.insert(keyed.find("\"time_limit_s\""), "\"stop_on_escape\": true, ");
+  write(d / "keyed.json", keyed);
   const std::string where = "open end of 'tube' (start)";
-  for (const bool stop : {true, false}) {
-    const fs::path out = d / (stop ? "stopped" : "on");
-    const CliResult r = run_cli("run " + (d / "s.json").string() + " --no-frames --no-report " +
-                                (stop ? "--stop-on-escape " : "") + "--out " + out.string());
+  for (const int how : {0, 1, 2}) {  // --stop-on-escape, the scenario's key, neither
+    const bool stop = how < 2;
+    const fs::path out = d / ("out" + std::to_string(how));
+    const CliResult r = run_cli("run " + (d / (how == 1 ? "keyed.json" : "s.json")).string() +
+                                " --no-frames --no-report " +
+                                (how == 0 ? "--stop-on-escape " : "") + "--out " + out.string());
     EXPECT_EQ(r.status, 4) << r.out << r.err;
     const std::size_t at = r.err.find("run: ESCAPE: ");
     ASSERT_NE(at, std::string::npos) << r.err;
