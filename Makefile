@@ -2,8 +2,8 @@
 JOBS ?= $(shell nproc)
 WERROR ?= $(if $(CI),ON,OFF)
 
-.PHONY: all deps build build-asan build-fuzz run test test-release test-asan test-fuzz fuzz-long \
-        bench format clean
+.PHONY: all deps build build-asan build-fuzz run test test-release test-asan test-fuzz test-tsan \
+        fuzz-long bench format clean
 
 all: build
 
@@ -28,7 +28,7 @@ build-fuzz: deps
 run: build
 	@build/bin/vcsim run default --out out/default; s=$$?; [ $$s -eq 0 ] || [ $$s -eq 3 ]
 
-test: test-release test-asan test-fuzz
+test: test-release test-asan test-fuzz test-tsan
 
 test-release: build
 	ctest --preset release -j $(JOBS)
@@ -47,6 +47,12 @@ FUZZ_RUNS ?= -1
 fuzz-long: build-fuzz
 	tests/fuzz/run-campaign build-fuzz $(FUZZ_SECONDS) $(FUZZ_RUNS)
 
+# ThreadSanitizer on the tests that use threads only (the tsan preset builds just those).
+test-tsan: deps
+	cmake --preset tsan -DVCSIM_WERROR=$(WERROR)
+	cmake --build --preset tsan -j $(JOBS)
+	ctest --preset tsan -j $(JOBS)
+
 bench: build
 	build/bin/vcsim_bench_rod --benchmark_min_time=0.2
 	build/bin/vcsim_bench_solver --benchmark_min_time=0.5
@@ -58,4 +64,4 @@ format:
 	clang-format -i $$(git ls-files '*.cpp' '*.h')
 
 clean:
-	rm -rf build build-debug build-asan build-fuzz
+	rm -rf build build-debug build-asan build-fuzz build-tsan

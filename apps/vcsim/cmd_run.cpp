@@ -7,6 +7,7 @@
 // does the work (src/sim: run_loop, the report; src/render: the film); this file is options.
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -14,6 +15,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "commands.h"
 #include "run_support.h"
@@ -28,6 +30,9 @@ namespace {
 namespace fs = std::filesystem;
 // Exit status of a run that went well but did not reach every landmark (2 is bad input).
 constexpr int kNotReached = 3;
+// Exit status of a run in which an instrument was seen outside the vessel (physics.md 6.3),
+// whether it went on (the default) or stopped there (--stop-on-escape).
+constexpr int kEscaped = 4;
 
 struct RunOptions {
   std::string scenario = "default";
@@ -44,10 +49,11 @@ struct RunOptions {
   std::string address = "127.0.0.1";
   bool address_given = false;
   bool realtime = false;
-  std::string force_log;   // CSV of the hand forces, every step ("" = none)
-  std::string replay;      // a command recording to replay (a trainer session), "" = none
-  std::string record;      // where to write the run's command recording, "" = none
-  bool no_report = false;  // skip DIR/report.html (the assessment is written all the same)
+  std::string force_log;        // CSV of the hand forces, every step ("" = none)
+  std::string replay;           // a command recording to replay (a trainer session), "" = none
+  std::string record;           // where to write the run's command recording, "" = none
+  bool no_report = false;       // skip DIR/report.html (the assessment is written all the same)
+  bool stop_on_escape = false;  // end the run at the first node seen outside the vessel
 };
 
 // What the command line does around each step: the autopilot's log, the force log, the command
@@ -82,7 +88,7 @@ class RunDisplay : public RunObserver {
       std::cerr << "run: t = " << sim.time() << " s: exchange: " << describe(change) << "\n";
   }
   void after_step(const Simulator& sim) override {
-    if (force_log_) force_log_->after_step(sim);
+    if (sim.metrics().escape_steps > escape_steps_) report_escapes(sim);
     if (film_) film_->after_step(sim);
     if (bar_ && sim.metrics().steps % 50 == 0) {
       const double wall = (now_us() - loop0_) * 1e-6;
@@ -97,6 +103,19 @@ class RunDisplay : public RunObserver {
   void done() {
     if (bar_) std::fprintf(stderr, "\n");
   }
+  // An instrument's first escape, once per instrument (by name: an exchange keeps it).
+  void report_escapes(const Simulator& sim) {
+    escape_steps_ = sim.metrics().escape_steps;
+    for (int i = 0; i < sim.num_instruments(); ++i) {
+      const EscapeRecord& e = sim.metrics().escapes[static_cast<std::size_t>(i)];
+      const std::string& name = sim.model().instrument_name(i);
+      if (e.steps == 0 || std::find(escaped_.begin(), escaped_.end(), name) != escaped_.end())
+        continue;
+      escaped_.push_back(name);
+      if (bar_) std::fprintf(stderr, "\n");
+      std::cerr << "run: ESCAPE: " << describe_escape(sim.model(), i, e) << "\n";
+    }
+  }
 
  private:
   const RunOptions& o_;
@@ -107,6 +126,8 @@ class RunDisplay : public RunObserver {
   bool bar_;
   double loop0_;
   std::string last_status_;
+  std::int64_t escape_steps_ = 0;
+  std::vector<std::string> escaped_;  // instruments whose escape was reported
 };
 
 // True when one of the scenario's instruments, or one the timeline adds, is a balloon catheter
@@ -225,6 +246,7 @@ int cmd_run(const RunOptions& o) {
   loop_settings.end_time = report.end_time;
   loop_settings.realtime = report.realtime;
   loop_settings.stop = &stop_on_signal.flag();
+  loop_settings.stop_on_escape = o.stop_on_escape || sc.stop_on_escape;
   const double loop0 = now_us();
   report.loop = run_loop(sim, input, loop_settings, &observers);
   if (device) device->stop();        // the connection closes with the run; the counts are final
@@ -233,6 +255,8 @@ int cmd_run(const RunOptions& o) {
   report.render_time = recorder ? recorder->render_seconds() : 0.0;
   display.done();
   if (report.loop.stopped) std::cerr << "run: stopped by a signal at t = " << sim.time() << " s\n";
+  if (report.loop.stopped_on_escape)
+    std::cerr << "run: stopped on an escape at t = " << sim.time() << " s (--stop-on-escape)\n";
   report.wall_time = (now_us() - loop0) * 1e-6;
   report.setup_time = (now_us() - wall0) * 1e-6 - report.wall_time;
   if (device) {
@@ -273,7 +297,8 @@ int cmd_run(const RunOptions& o) {
     std::cout << "  replay:  " << replay->recording().steps() << " steps, state hash "
               << (same ? "equal to the recording's" : "DIFFERENT from the recording's") << "\n";
   }
-  return run_outcome(sim, report).success ? 0 : kNotReached;
+  const RunOutcome outcome = run_outcome(sim, report);
+  return outcome.escaped ? kEscaped : outcome.success ? 0 : kNotReached;
 }
 
 void install(CLI::App& app, int& status) {
@@ -306,6 +331,10 @@ void install(CLI::App& app, int& status) {
   cmd->add_option("--record", o->record,
                   "Write the run's commands and instrument exchanges to this command recording "
                   "(replayed by --replay to the same final state)");
+  cmd->add_flag("--stop-on-escape", o->stop_on_escape,
+                "End the run at the first step with a node outside the vessel (behind the wall "
+                "or beyond an open end; exit status 4 either way; the scenario's "
+                "stop_on_escape does the same)");
   cmd->add_flag("--no-report", o->no_report,
                 "Do not write DIR/report.html (metrics.json, series.csv are written all the same)");
   cmd->callback([o, &status, cmd] {

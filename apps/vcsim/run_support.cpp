@@ -1,5 +1,7 @@
 #include "run_support.h"
 
+#include "vcsim/units.h"
+
 namespace vcsim::app {
 
 namespace {
@@ -48,6 +50,9 @@ std::unique_ptr<IgtlServer> open_device(const DeviceOptions& o, const Scenario& 
   IgtlServerOptions io;
   io.address = o.address;
   io.port = o.port;
+  // A device faster than the drive is followed at the drive's speed, and told so once.
+  io.drive_max_speed_mm_s = Sheath{}.max_speed / kMm;
+  io.drive_max_spin_deg_s = Sheath{}.max_spin / kDeg;
   io.instruments.clear();
   for (const ScenarioInstrument& si : sc.instruments) io.instruments.push_back(si.name);
   try {

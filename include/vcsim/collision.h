@@ -11,6 +11,7 @@
 #include <limits>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace vcsim {
@@ -232,6 +233,14 @@ class AabbTree {
 // ---------------------------------------------------------------------------------------------
 // The wall instruments collide with
 
+// An open end of the lumen (a vessel end the mesh leaves open: the femoral access, the arch
+// branches, the distal coronaries): the disc a node crosses when it leaves the vessel there.
+struct WallExit {
+  Vec3 centre = Vec3::Zero();   // m, the disc's centre (on the vessel's centreline)
+  Vec3 outward = Vec3::Zero();  // unit, out of the vessel
+  double radius = 0.0;          // m
+};
+
 // What instruments collide with: a static lumen (StaticWall) or a moving one (anatomy's
 // BeatingWall). The solver sets the time of each (sub-)step, then asks once per step and
 // instrument for the contacts of spheres (nodes); a moving wall first brings the part of itself
@@ -271,6 +280,9 @@ class VesselWall {
     (void)radius;
     return speed_bound() > 0.0;
   }
+  // The lumen's open ends at the time set (none by default): a node beyond one has left the
+  // vessel (the solver's escape check, physics.md 6.3). Allocates nothing.
+  virtual std::span<const WallExit> exits() { return {}; }
 };
 
 // A wall that does not move: a lumen mesh and its AABB tree (owned elsewhere, must outlive it).
@@ -287,11 +299,15 @@ class StaticWall final : public VesselWall {
   void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
                      std::span<LeafCache* const> caches, double slack,
                      std::span<SphereContact> out) override;
+  // The mesh's open ends (none unless set).
+  void set_exits(std::vector<WallExit> exits) { exits_ = std::move(exits); }
+  std::span<const WallExit> exits() override { return exits_; }
 
  private:
   const TriangleMesh* mesh_;
   const AabbTree* tree_;
   int parallel_min_;
+  std::vector<WallExit> exits_;
 };
 
 // ---------------------------------------------------------------------------------------------

@@ -300,6 +300,11 @@ struct IgtlServerOptions {
   std::vector<std::string> instruments = {"guidewire", "catheter"};
   double feedback_rate_hz = 200.0;  // force messages per second while a client is connected
   CommandLimits limits;
+  // What the drive follows (Sheath::max_speed, max_spin; 0: unknown): a device moving an
+  // instrument faster is followed at these speeds, and told so in one log line per instrument
+  // (velocity commands as sent; positions by their change over 20 ms or more).
+  double drive_max_speed_mm_s = 0.0;
+  double drive_max_spin_deg_s = 0.0;
   // Where log lines go (one line each, no newline); default: stderr with a "vcsim igtl:" prefix.
   // Called from the server thread.
   std::function<void(const std::string&)> log;
@@ -313,15 +318,22 @@ struct IgtlStats {
   std::uint64_t feedback_sent = 0;      // force messages sent
   std::uint64_t exchanges = 0;          // instrument exchanges asked for and done
   std::uint64_t exchanges_refused = 0;  // asked for and refused by the simulation
+  std::uint64_t clients_refused = 0;    // connections refused while a client was connected
+  std::uint64_t messages_skipped = 0;   // well-formed but over 64 KiB: read past, not parsed
+  // Instruments a device moved faster than the drive follows (each reported once).
+  std::uint64_t beyond_drive = 0;
   bool connected = false;
 };
 
-// An OpenIGTLink server on a background thread: one client at a time (a new connection replaces
-// the old one, so a device that restarts can reconnect), TRANSFORM and SENSOR messages in, SENSOR
-// "force_<name>" out at feedback_rate_hz. A client that disconnects leaves position commands
-// where they are and stops velocity commands and syringe flow. Bad messages are dropped and
-// logged; a header that cannot be framed drops the connection. Thread-safe: poll() and
-// publish() come from the physics thread.
+// An OpenIGTLink server on a background thread: one client at a time (another connection is
+// refused with a log line while one is connected; a client that vanishes without closing is
+// dropped once 3 s of sent data go unacknowledged, so a device that restarts can reconnect),
+// TRANSFORM and SENSOR messages in, SENSOR "force_<name>" out at feedback_rate_hz. A client that
+// disconnects leaves position commands where they are and stops velocity commands and syringe
+// flow. Bad messages are dropped and logged, a well-formed one over 64 KiB (an IMAGE) is read
+// past and logged; a header that cannot be framed drops the connection. Listening beyond
+// loopback is logged as a warning. Thread-safe: poll() and publish() come from the physics
+// thread.
 class IgtlServer : public InputSource {
  public:
   // Listens at once; throws InputError naming the option when the address, port or names are

@@ -184,7 +184,10 @@ struct Scenario {
   MotionSettings motion;
   double dt = 1e-3;          // s, physics step (1 kHz or faster)
   double time_limit = 60.0;  // s of simulated time before the run ends unfinished
-  std::uint64_t seed = 1;    // of the state's random generator (SimState::random)
+  // End the run at the first step with a node outside the vessel (physics.md 6.3), as `vcsim run
+  // --stop-on-escape` does.
+  bool stop_on_escape = false;
+  std::uint64_t seed = 1;  // of the state's random generator (SimState::random)
   // The introducer sheath's straight part inside the vessel from the access point (m; 0: none),
   // its lumen 0.2 mm wider than the widest instrument (physics.md 6.2).
   double sheath_length = 25e-3;
@@ -313,6 +316,17 @@ struct LandmarkRecord {
   double time = 0.0;  // s, simulated time first reached
 };
 
+// An instrument's nodes found outside the vessel (physics.md 6.3): behind the lumen's wall by
+// more than their radius, or beyond an open end of the vessel tree. Seen by the contact queries.
+struct EscapeRecord {
+  std::int64_t steps = 0;     // steps in which one of its nodes was seen outside
+  double time = -1.0;         // s, the first such step's end; < 0: none
+  int node = -1;              // the first step's node farthest out
+  double distance = 0.0;      // m, how far out it was: behind the wall, or beyond the end's plane
+  int exit = -1;              // the open end it left by (index in open_ends(tree)); -1: the wall
+  double max_distance = 0.0;  // m, the farthest out seen
+};
+
 // What a run has done so far (accumulated by every step; no wall-clock times, so that equal
 // states are equal bit for bit).
 struct SimMetrics {
@@ -330,6 +344,8 @@ struct SimMetrics {
   int rollbacks = 0;                      // steps that produced a non-finite value and were undone
   // Steps taken again split after a sudden change of a hand force (Scenario::fine_step_jump).
   std::int64_t resplit_steps = 0;
+  std::vector<EscapeRecord> escapes;  // (instrument)
+  std::int64_t escape_steps = 0;      // steps in which any instrument was seen outside the vessel
 };
 
 struct SimState {
@@ -344,7 +360,8 @@ struct SimState {
   std::shared_ptr<const SimModel> model;
 
   double time() const { return solver.time; }  // s
-  // FNV-1a over every value above.
+  // FNV-1a over every value above (the escape records only once there is one: a run without an
+  // escape hashes as it did before they were kept).
   std::uint64_t hash() const;
   // Bytes of memory a copy (a snapshot) holds.
   std::size_t bytes() const;
@@ -592,6 +609,9 @@ struct RunLoopSettings {
   double max_catch_up = 0.25;  // s, see RealTimePacer
   // When set (a signal handler may set it: lock-free), the loop ends before the next step.
   const std::atomic<bool>* stop = nullptr;
+  // End the loop after the first step in which a node was seen outside the vessel
+  // (SimMetrics::escapes; `vcsim run --stop-on-escape`).
+  bool stop_on_escape = false;
 };
 
 struct RunLoopStats {
@@ -599,9 +619,10 @@ struct RunLoopStats {
   std::int64_t late_steps = 0;  // real time only (RealTimePacer)
   double max_lag = 0.0;         // s
   std::int64_t resyncs = 0;
-  bool stopped = false;       // ended by RunLoopSettings::stop
-  int exchanges = 0;          // instrument exchanges applied
-  int refused_exchanges = 0;  // and refused (the input source was told)
+  bool stopped = false;            // ended by RunLoopSettings::stop
+  bool stopped_on_escape = false;  // ended by RunLoopSettings::stop_on_escape
+  int exchanges = 0;               // instrument exchanges applied
+  int refused_exchanges = 0;       // and refused (the input source was told)
 };
 
 // What a caller does around each step (film, progress, a controller's log).
@@ -658,9 +679,13 @@ struct RunReport {
 };
 
 struct RunOutcome {
-  bool success = false;  // every landmark reached
+  bool success = false;  // every landmark and target reached, no instrument outside the vessel
+  bool escaped = false;  // an instrument was seen outside the vessel (SimMetrics::escape_steps)
   std::string text;      // "all landmarks reached", or what was missed and why
 };
+// One line saying where instrument i's first escape was (SimMetrics::escapes): "t = 1.23 s:
+// 'wire' node 250 left the vessel through the open end of 'main' (start), 3.1 mm beyond it".
+std::string describe_escape(const SimModel& model, int i, const EscapeRecord& e);
 RunOutcome run_outcome(const Simulator& sim, const RunReport& report);
 
 // DIR/metrics.json (docs/scenarios.md, "metrics.json"): the run's figures, instruments, landmarks,

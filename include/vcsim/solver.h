@@ -72,6 +72,16 @@ struct NodeContact {
   double preload = 0.0;
 };
 
+// A node found outside the vessel in a step (an output: SolverWorkspace::escape; physics.md
+// 6.3): its centre behind the lumen's wall by more than its radius, or beyond an open end's disc
+// (VesselWall::exits) by more than its radius. Seen by the contact queries the step makes anyway;
+// it changes nothing (the caller counts and reports it).
+struct NodeEscape {
+  int node = -1;          // the farthest out of the step's escaped nodes; -1: none
+  double distance = 0.0;  // m: its centre behind the wall, or beyond the open end's plane
+  int exit = -1;          // the wall's exit (index in VesselWall::exits) it left by; -1: the wall
+};
+
 // One wire node held inside the outer instrument's lumen in the last step (concentric
 // constraint; an output: SolverWorkspace::coupling_contacts).
 struct CoaxialContact {
@@ -292,6 +302,9 @@ class SolverWorkspace {
   double coupling_clearance(int coupling) const;
   // True when the node lay in another instrument's lumen in the last fine step (no wall query).
   bool sheathed(int instrument, int node) const;
+  // The instrument's node farthest outside the vessel over the last step's fine steps (node -1:
+  // none; a step undone by a rollback has none).
+  NodeEscape escape(int instrument) const;
 
   // Forgets what the leaf caches know of the wall (after the wall changed shape).
   void clear_caches();

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 
+#include "tsan_tasks.h"
 #include "vcsim/collision.h"
 
 namespace vcsim {
@@ -30,10 +31,14 @@ void StaticWall::query_spheres(std::span<const Vec3> centres, std::span<const do
   }
   // One chunk per thread: about 0.6 us per query, so finer chunks would cost more to hand out.
   const auto grain = static_cast<std::size_t>((n + chunks - 1) / chunks);
+#if defined(__SANITIZE_THREAD__)
+  internal::tsan_chunks(centres.size(), grain, run);
+#else
   tbb::parallel_for(
       tbb::blocked_range<std::size_t>(0, centres.size(), grain),
       [&](const tbb::blocked_range<std::size_t>& r) { run(r.begin(), r.end()); },
       tbb::static_partitioner());
+#endif
 }
 
 }  // namespace vcsim

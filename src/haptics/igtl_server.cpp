@@ -46,9 +46,20 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 constexpr std::size_t kHeaderSize = IGTL_HEADER_SIZE;  // 58 bytes
-// Larger than any message we accept (a SENSOR of 255 values is 2 kB); anything bigger is either
-// an image we do not want or garbage, and reading it would stall the connection.
+// Larger than any message we accept (a SENSOR of 255 values is 2 kB); a well-formed message with
+// a bigger body (an IMAGE a 3D Slicer user sends along) is read past in the receive buffer's
+// chunks, never held whole. A body size beyond kMaxSkip is not a message but garbage.
 constexpr std::uint64_t kMaxBody = 64 * 1024;
+constexpr std::uint64_t kMaxSkip = std::uint64_t{1} << 40;
+// Connections the kernel holds for accept(): a burst of clients is each answered (one adopted,
+// the others refused) instead of some left retrying their SYN.
+constexpr int kListenBacklog = 128;
+// A connected client whose sent data stay unacknowledged this long is gone (a device that lost
+// power or its cable): dropped, so that it can connect again (TCP_USER_TIMEOUT).
+constexpr unsigned kClientTimeoutMs = 3000;
+// A position command's speed is its change over at least this long (messages may come in
+// bursts; a device's rate is 100-1000 Hz).
+constexpr double kSpeedWindow = 0.02;  // s
 constexpr int kMaxLogLinesPerSecond = 20;
 
 std::string num(double v) {
@@ -142,6 +153,19 @@ struct IgtlServer::Impl {
   Clock::time_point log_window;
   int log_lines = 0;
   int log_suppressed = 0;
+  std::uint64_t skipping = 0;  // bytes of an oversized message's body still to read past
+
+  // Per instrument name (under cmd_mu): the last position command's reference for its speed,
+  // and whether a speed or spin beyond the drive was reported (once each).
+  struct Follow {
+    std::string name;
+    bool has = false;
+    Clock::time_point t;
+    double translation = 0.0, rotation = 0.0;
+    bool said_speed = false, said_spin = false;
+  };
+  std::vector<Follow> follow;
+  std::atomic<std::uint64_t> n_refused_clients{0}, n_skipped{0}, n_beyond{0};
 
   void log(const std::string& line) {
     const auto now = Clock::now();
@@ -188,22 +212,23 @@ struct IgtlServer::Impl {
 
   // ---- connection ----
 
-  void adopt(int fd) {
-    if (client_fd >= 0) {
-      log("a new client replaces the connected one");
-      disconnect("replaced");
-    }
+  void adopt(int fd, const std::string& peer) {
     const int flags = fcntl(fd, F_GETFL, 0);
     fcntl(fd, F_SETFL, flags | O_NONBLOCK);
     int one = 1;
     setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);  // small messages, low latency
+    // A client that vanished without closing (we send forces all the time) is dropped.
+    const unsigned timeout = kClientTimeoutMs;
+    setsockopt(fd, IPPROTO_TCP, TCP_USER_TIMEOUT, &timeout, sizeof timeout);
+    setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one);
     client_fd = fd;
     rx.clear();
     tx.clear();
     tx_sent = 0;
+    skipping = 0;
     n_connections.fetch_add(1);
     connected = true;
-    log("client connected");
+    log(cat("client connected from ", peer));
   }
 
   void disconnect(const std::string& why) {
@@ -213,6 +238,7 @@ struct IgtlServer::Impl {
     rx.clear();
     tx.clear();
     tx_sent = 0;
+    skipping = 0;
     n_disconnections.fetch_add(1);
     connected = false;
     log(cat("client disconnected (", why, ")"));
@@ -227,9 +253,26 @@ struct IgtlServer::Impl {
     latest.syringe_flow_ml_s = 0.0;
   }
 
+  // Every connection waiting (a burst): the first adopted when none is connected, the others
+  // refused (closed at once) with a log line: a second client must not take over a live session.
   void accept_pending() {
-    const int fd = ::accept(listen_fd, nullptr, nullptr);
-    if (fd >= 0) adopt(fd);
+    for (;;) {
+      sockaddr_in peer{};
+      socklen_t len = sizeof peer;
+      const int fd = ::accept4(listen_fd, reinterpret_cast<sockaddr*>(&peer), &len, SOCK_CLOEXEC);
+      if (fd < 0) return;
+      char ip[INET_ADDRSTRLEN] = "?";
+      inet_ntop(AF_INET, &peer.sin_addr, ip, sizeof ip);
+      const std::string who = cat(ip, ":", std::to_string(ntohs(peer.sin_port)));
+      if (client_fd < 0) {
+        adopt(fd, who);
+        continue;
+      }
+      ::close(fd);
+      n_refused_clients.fetch_add(1);
+      log(cat("refused a connection from ", who,
+              ": a client is connected (one at a time; docs/devices.md)"));
+    }
   }
 
   // ---- receiving ----
@@ -239,7 +282,13 @@ struct IgtlServer::Impl {
     for (int rounds = 0; rounds < 64; ++rounds) {  // bounded: keep feedback on time
       const ssize_t n = ::recv(client_fd, buf, sizeof buf, 0);
       if (n > 0) {
-        rx.insert(rx.end(), buf, buf + n);
+        // An oversized body is read past here, chunk by chunk, not kept.
+        std::size_t k = 0;
+        if (skipping > 0 && rx.empty()) {
+          k = static_cast<std::size_t>(std::min<std::uint64_t>(skipping, std::uint64_t(n)));
+          skipping -= k;
+        }
+        rx.insert(rx.end(), buf + k, buf + n);
         if (!frame_messages()) return;
         continue;
       }
@@ -256,7 +305,15 @@ struct IgtlServer::Impl {
   // dropped: after a bad header there is no way to find the next message boundary).
   bool frame_messages() {
     std::size_t off = 0;
-    while (rx.size() - off >= kHeaderSize) {
+    for (;;) {
+      if (skipping > 0) {
+        const std::size_t k =
+            static_cast<std::size_t>(std::min<std::uint64_t>(skipping, rx.size() - off));
+        off += k;
+        skipping -= k;
+        if (skipping > 0) break;
+      }
+      if (rx.size() - off < kHeaderSize) break;
       igtl_header h;
       std::memcpy(&h, rx.data() + off, kHeaderSize);
       igtl_header_convert_byte_order(&h);
@@ -264,12 +321,22 @@ struct IgtlServer::Impl {
       const bool names_ok = clean_name(h.name, IGTL_HEADER_TYPE_SIZE, type) &&
                             clean_name(h.device_name, IGTL_HEADER_NAME_SIZE, device);
       if ((h.version != 1 && h.version != 2) || !names_ok || type.empty() ||
-          h.body_size > kMaxBody) {
+          h.body_size > kMaxSkip) {
         n_dropped.fetch_add(1);
         log(cat("unreadable header (version ", std::to_string(h.version), ", body ",
                 std::to_string(h.body_size), " bytes): dropping the connection"));
         disconnect("garbage on the stream");
         return false;
+      }
+      if (h.body_size > kMaxBody) {
+        // Well-formed but more than we read (an IMAGE): skipped, the connection kept.
+        n_dropped.fetch_add(1);
+        n_skipped.fetch_add(1);
+        log(cat("skipped ", type, " message '", device, "' of ", std::to_string(h.body_size),
+                " bytes (messages over ", std::to_string(kMaxBody), " bytes are not read)"));
+        skipping = h.body_size;
+        off += kHeaderSize;
+        continue;
       }
       const std::size_t body = static_cast<std::size_t>(h.body_size);
       if (rx.size() - off < kHeaderSize + body) break;  // wait for the rest
@@ -441,6 +508,62 @@ struct IgtlServer::Impl {
     c.rotation_deg = rotation;
     if (idx < 64) latest.commanded |= std::uint64_t{1} << idx;
     n_accepted.fetch_add(1);
+    const std::string beyond = check_drive(name, mode, translation, rotation);
+    lock.unlock();
+    if (!beyond.empty()) log(beyond);
+  }
+
+  // A command faster than the drive follows (IgtlServerOptions::drive_max_*): the drive goes at
+  // its limit, and says so once per instrument for speed and once for spin. Under cmd_mu.
+  std::string check_drive(std::string_view name, InstrumentCommand::Mode mode, double translation,
+                          double rotation) {
+    const double max_speed = opt.drive_max_speed_mm_s, max_spin = opt.drive_max_spin_deg_s;
+    if (max_speed <= 0.0 && max_spin <= 0.0) return {};
+    auto it =
+        std::find_if(follow.begin(), follow.end(), [&](const Follow& f) { return f.name == name; });
+    if (it == follow.end()) {
+      Follow f;
+      f.name = std::string(name);
+      follow.push_back(std::move(f));
+      it = follow.end() - 1;
+    }
+    Follow& f = *it;
+    double speed = 0.0, spin = 0.0;
+    if (mode == InstrumentCommand::Mode::kVelocity) {
+      speed = std::abs(translation);
+      spin = std::abs(rotation);
+      f.has = false;
+    } else {
+      const auto now = Clock::now();
+      if (!f.has) {
+        f.has = true;
+        f.t = now;
+        f.translation = translation;
+        f.rotation = rotation;
+        return {};
+      }
+      const double dt = std::chrono::duration<double>(now - f.t).count();
+      if (dt < kSpeedWindow) return {};
+      speed = std::abs(translation - f.translation) / dt;
+      spin = std::abs(rotation - f.rotation) / dt;
+      f.t = now;
+      f.translation = translation;
+      f.rotation = rotation;
+    }
+    std::string out;
+    if (max_speed > 0.0 && speed > max_speed && !f.said_speed) {
+      f.said_speed = true;
+      n_beyond.fetch_add(1);
+      out = cat("'", f.name, "' moves at ", num(std::round(speed)),
+                " mm/s, faster than the drive follows: it follows at ", num(max_speed), " mm/s");
+    } else if (max_spin > 0.0 && spin > max_spin && !f.said_spin) {
+      f.said_spin = true;
+      n_beyond.fetch_add(1);
+      out = cat("'", f.name, "' turns at ", num(std::round(spin)),
+                " deg/s, faster than the drive follows: it turns at ", num(std::round(max_spin)),
+                " deg/s");
+    }
+    return out;
   }
 
   // ---- sending ----
@@ -600,7 +723,7 @@ IgtlServer::IgtlServer(IgtlServerOptions options) : impl_(std::make_unique<Impl>
   int one = 1;
   setsockopt(s.listen_fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
   if (::bind(s.listen_fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0 ||
-      ::listen(s.listen_fd, 4) != 0) {
+      ::listen(s.listen_fd, kListenBacklog) != 0) {
     const std::string err = std::strerror(errno);
     ::close(s.listen_fd);
     throw InputError(src, "port",
@@ -619,6 +742,11 @@ IgtlServer::IgtlServer(IgtlServerOptions options) : impl_(std::make_unique<Impl>
   s.fb_names = s.opt.instruments;  // the force messages are made by the server thread
   s.feedback.resize(s.fb_names.size());
   s.log_window = Clock::now();
+  // Beyond loopback anyone who reaches this machine can drive the instruments.
+  if ((ntohl(addr.sin_addr.s_addr) >> 24) != 127)
+    s.emit(cat("warning: listening on ", s.opt.address,
+               ": any machine that can reach this one can drive the instruments (OpenIGTLink "
+               "has no authentication); use it on a trusted network only"));
   s.thread = std::thread([&s] { s.run(); });
 }
 
@@ -727,6 +855,9 @@ IgtlStats IgtlServer::stats() const {
   st.feedback_sent = s.n_feedback.load();
   st.exchanges = s.n_exchanges.load();
   st.exchanges_refused = s.n_refused.load();
+  st.clients_refused = s.n_refused_clients.load();
+  st.messages_skipped = s.n_skipped.load();
+  st.beyond_drive = s.n_beyond.load();
   st.connected = s.connected.load();
   return st;
 }

@@ -9,7 +9,9 @@
 // The rod's hot loops are compiled twice, for AVX2 and for the x86-64 baseline (SSE2), and the
 // loader picks one for the machine. Both give the same bits: the loops are element-wise,
 // -ffp-contract=off rules out fused multiply-adds, and division and sqrt are correctly rounded.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+// Not under ThreadSanitizer: the clones' resolver runs while the loader relocates the program,
+// before TSan's runtime is up, and its instrumented entry crashes there.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_THREAD__)
 #define VCSIM_SIMD_CLONES [[gnu::target_clones("avx2", "default")]]
 #else
 #define VCSIM_SIMD_CLONES

@@ -43,8 +43,8 @@ SimState carry_sim_state(const SimModel& from, const SimState& st, const SimMode
   out.contrast = st.contrast;
   // Metrics: run totals as they are, an instrument's by its name (an added one starts afresh).
   out.metrics = st.metrics;
-  auto by_name = [&](const std::vector<double>& v, double fresh) {
-    std::vector<double> r(n, fresh);
+  auto by_name = [&]<class T>(const std::vector<T>& v, T fresh) {
+    std::vector<T> r(n, fresh);
     for (std::size_t j = 0; j < n; ++j)
       if (was[j] >= 0) r[j] = v[static_cast<std::size_t>(was[j])];
     return r;
@@ -56,6 +56,7 @@ SimState carry_sim_state(const SimModel& from, const SimState& st, const SimMode
   m.peak_axial_jump = by_name(st.metrics.peak_axial_jump, 0.0);
   m.peak_torque = by_name(st.metrics.peak_torque, 0.0);
   m.last_axial_force = by_name(st.metrics.last_axial_force, std::nan(""));
+  m.escapes = by_name(st.metrics.escapes, EscapeRecord{});
   // The procedure as it is (balloons keep their indices); an added balloon's state after them.
   out.procedure = st.procedure;
   extend_procedure_state(to.procedure, out.procedure, out.solver);

@@ -77,6 +77,10 @@ RunLoopStats run_loop(Simulator& sim, InputSource& input, const RunLoopSettings&
     sim.feedback(feedback);
     input.publish(feedback);
     if (observer) observer->after_step(sim);
+    if (settings.stop_on_escape && sim.metrics().escape_steps > 0) {
+      stats.stopped_on_escape = true;
+      break;
+    }
   }
   stats.late_steps = pacer.late_steps();
   stats.max_lag = pacer.max_lag();

@@ -32,7 +32,37 @@ double physics_real_time_factor(const Simulator& sim) {
   return w > 0 ? sim.time() / w : 0.0;
 }
 
+// Where an escape went out: "wall", or the open end as "open end of 'segment' (start|end)".
+std::string escape_where(const SimModel& md, int exit) {
+  if (exit < 0) return "wall";
+  const std::vector<OpenEnd> ends = open_ends(md.tree);
+  if (exit >= static_cast<int>(ends.size())) return "open end " + std::to_string(exit);
+  const OpenEnd& e = ends[static_cast<std::size_t>(exit)];
+  return "open end of '" + md.tree.segments[static_cast<std::size_t>(e.segment)].name + "' (" +
+         (e.at_start ? "start" : "end") + ")";
+}
+
+nlohmann::json escape_json(const SimModel& md, const EscapeRecord& e) {
+  if (e.steps == 0) return nullptr;
+  return {{"steps", e.steps},
+          {"first_time_s", e.time},
+          {"node", e.node},
+          {"distance_mm", e.distance * 1e3},
+          {"where", escape_where(md, e.exit)},
+          {"max_distance_mm", e.max_distance * 1e3}};
+}
+
 }  // namespace
+
+std::string describe_escape(const SimModel& md, int i, const EscapeRecord& e) {
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "t = %.4f s: '%s' node %d is outside the vessel, ", e.time,
+                md.instrument_name(i).c_str(), e.node);
+  std::string s = buf;
+  std::snprintf(buf, sizeof buf, "%.2f mm", e.distance * 1e3);
+  if (e.exit < 0) return s + buf + " behind the wall";
+  return s + buf + " beyond the " + escape_where(md, e.exit);
+}
 
 RunOutcome run_outcome(const Simulator& sim, const RunReport& r) {
   const Scenario& sc = sim.scenario();
@@ -57,8 +87,16 @@ RunOutcome run_outcome(const Simulator& sim, const RunReport& r) {
       if (!covered) missed.push_back("a stent covering the lesion");
     }
   }
+  // An instrument outside the vessel fails the run whatever it reached.
+  for (int i = 0; i < sim.num_instruments(); ++i)
+    if (m.escapes[static_cast<std::size_t>(i)].steps > 0)
+      missed.push_back("every instrument inside the vessel ('" + md.instrument_name(i) +
+                       "' left it at t = " + std::to_string(m.escapes[i].time) + " s)");
+  if (m.escape_steps > 0 && missed.empty())  // an instrument since removed
+    missed.push_back("every instrument inside the vessel");
   RunOutcome o;
   o.success = missed.empty();
+  o.escaped = m.escape_steps > 0;
   o.text = "all landmarks reached";
   if (o.success && (tg.residual_stenosis >= 0.0 || tg.stent_covers_lesion))
     o.text = "all landmarks and treatment targets reached";
@@ -71,6 +109,8 @@ RunOutcome run_outcome(const Simulator& sim, const RunReport& r) {
   }
   if (r.loop.stopped)
     o.text += " (stopped by a signal at t = " + std::to_string(sim.time()) + " s)";
+  if (r.loop.stopped_on_escape)
+    o.text += " (stopped on the escape at t = " + std::to_string(sim.time()) + " s)";
   return o;
 }
 
@@ -106,6 +146,8 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
   }
   j["steps"] = m.steps;
   j["rollbacks"] = m.rollbacks;
+  j["escape_steps"] = m.escape_steps;
+  j["stopped_on_escape"] = r.loop.stopped_on_escape;
   j["resplit_steps"] = m.resplit_steps;
   j["frames"] = r.frames;
   j["fluoroscopy_time_s"] = r.fluoroscopy_time >= 0.0 ? r.fluoroscopy_time : r.frames * frame_dt;
@@ -130,6 +172,7 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
                      {"tip_segment", in.drive.depth > 0 ? sim.tree().segments[h.loc.segment].name
                                                         : std::string("outside")},
                      {"tip_distance_mm", h.loc.distance * 1e3},
+                     {"escape", escape_json(sim.model(), m.escapes[static_cast<std::size_t>(i)])},
                      {"final_shape_mm", shape_json(sim.rod_model(i), in)}});
   }
   j["instruments"] = insts;
@@ -203,6 +246,9 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
     input["messages_accepted"] = r.device.messages_accepted;
     input["messages_dropped"] = r.device.messages_dropped;
     input["feedback_sent"] = r.device.feedback_sent;
+    input["clients_refused"] = r.device.clients_refused;
+    input["messages_skipped"] = r.device.messages_skipped;
+    input["beyond_drive"] = r.device.beyond_drive;
   }
   if (r.realtime) {
     input["late_steps"] = r.loop.late_steps;
@@ -250,6 +296,12 @@ void print_run_summary(std::ostream& out, const Simulator& sim, const RunReport&
   if (r.realtime)
     out << "  pacing:  real time, " << r.loop.late_steps << " late steps (worst lag "
         << r.loop.max_lag * 1e3 << " ms, " << r.loop.resyncs << " resyncs)\n";
+  if (m.escape_steps > 0) {
+    out << "  ESCAPE:  " << m.escape_steps << " step(s) with an instrument outside the vessel\n";
+    for (int i = 0; i < sim.num_instruments(); ++i)
+      if (m.escapes[static_cast<std::size_t>(i)].steps > 0)
+        out << "           " << describe_escape(sim.model(), i, m.escapes[i]) << "\n";
+  }
   out << "  metrics: " << metrics.string() << "\n";
 }
 

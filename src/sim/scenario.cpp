@@ -305,6 +305,7 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
                         num(sc.dt * 1e3)));
   sc.time_limit = f.in_range_or("time_limit_s", 0.0, 3600.0, 60.0);
   check_run_steps(sc.dt, sc.time_limit, src, f.has("time_limit_s") ? "time_limit_s" : "dt_ms");
+  sc.stop_on_escape = f.boolean_or("stop_on_escape", false);
   if (f.has("seed")) {
     const double seed = f.number("seed");
     if (seed < 0 || seed > 9007199254740992.0 || seed != std::floor(seed))

@@ -27,6 +27,11 @@ class ProcedureWall final : public VesselWall {
   VesselWall* lumen = nullptr;
   std::vector<StentTube> stents;
   const CardiacMotion* motion = nullptr;
+  // The tree's open ends (open_ends order) at rest and their motion amplitudes at the centre;
+  // exits() moves them to the time set (their discs carried, not turned: a distal coronary's end
+  // turns by a few degrees, a fraction of its radius in the escape check).
+  std::vector<WallExit> exits_rest;
+  std::vector<Vec3> exit_amp_c, exit_amp_r;
 
   void set_time(double t) override {
     time_ = t;
@@ -42,12 +47,18 @@ class ProcedureWall final : public VesselWall {
   // The lumen's moving parts, and near a deployed stent (it beats with its vessel) whenever the
   // lumen moves at all.
   bool moves_near(const Vec3& centre, double radius) const override;
+  std::span<const WallExit> exits() override;
 
  private:
   void add_stents(std::span<const Vec3> centres, std::span<const double> radii,
                   std::span<SphereContact> out) const;
   double time_ = 0.0;
+  std::vector<WallExit> exits_;  // (exit) at exits_time_
+  double exits_time_ = -1.0;
 };
+
+// The tree's open ends as the wall's exits, with their motion amplitudes (none without motion).
+void make_exits(const VesselTree& tree, const CardiacMotion* motion, ProcedureWall& wall);
 
 struct SimScratch {
   // With `reuse` (a workspace of a model with the same anatomy, an exchange apart): its wall

@@ -85,6 +85,7 @@ SimState make_sim_state(const SimModel& md) {
   m.peak_torque.assign(n, 0.0);
   m.last_axial_force.assign(n, std::nan(""));
   m.landmarks.assign(md.scenario.landmarks.size(), LandmarkRecord{});
+  m.escapes.assign(n, EscapeRecord{});
   st.procedure = make_procedure_state(md.procedure, st.solver);
   st.random.state = md.scenario.seed;
   return st;
@@ -112,6 +113,17 @@ std::uint64_t SimState::hash() const {
   h.add_value(m.next_landmark_check);
   h.add_value(m.rollbacks);
   h.add_value(m.resplit_steps);
+  if (m.escape_steps > 0) {
+    h.add_value(m.escape_steps);
+    for (const EscapeRecord& e : m.escapes) {
+      h.add_value(e.steps);
+      h.add_value(e.time);
+      h.add_value(e.node);
+      h.add_value(e.distance);
+      h.add_value(e.exit);
+      h.add_value(e.max_distance);
+    }
+  }
   procedure.hash_into(h);
   h.add_value(random.state);
   return h.value();
@@ -138,7 +150,7 @@ std::size_t SimState::bytes() const {
   const SimMetrics& m = metrics;
   b += bytes_of(m.tip_path) + bytes_of(m.peak_wall_force) + bytes_of(m.peak_axial_force) +
        bytes_of(m.peak_axial_jump) + bytes_of(m.peak_torque) + bytes_of(m.last_axial_force) +
-       bytes_of(m.landmarks);
+       bytes_of(m.landmarks) + bytes_of(m.escapes);
   for (const BalloonState& bs : procedure.balloons) b += bytes_of(bs.radius) + bytes_of(bs.s);
   for (const StentState& ss : procedure.stents)
     b += bytes_of(ss.expanded) + bytes_of(ss.ring_s) + bytes_of(ss.ring_radius);
@@ -185,6 +197,9 @@ internal::SimScratch::SimScratch(const SimModel& md, SimScratch* reuse) : solver
       wall.lumen = static_wall.get();
     }
     wall.motion = md.motion ? &*md.motion : nullptr;
+    wall.exits_rest = std::move(reuse->wall.exits_rest);
+    wall.exit_amp_c = std::move(reuse->wall.exit_amp_c);
+    wall.exit_amp_r = std::move(reuse->wall.exit_amp_r);
     wall.stents = std::move(reuse->wall.stents);
     wall.stents.resize(balloons);
     shown_stents = std::move(reuse->shown_stents);
@@ -211,6 +226,7 @@ internal::SimScratch::SimScratch(const SimModel& md, SimScratch* reuse) : solver
     wall.lumen = static_wall.get();
   }
   wall.motion = md.motion ? &*md.motion : nullptr;
+  make_exits(md.tree, wall.motion, wall);
   if (morphs && !md.motion) {
     std::vector<unsigned char> moved(md.lumen.mesh.vertices.size(), 0);
     for (int v : morph.vertices) moved[v] = 1;
@@ -263,6 +279,7 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
   // The last (fine) step's dt: the contact impulses are its.
   const double dt = md.solver.settings[st.solver.split - 1].rod.dt;
   SimMetrics& m = st.metrics;
+  bool escaped = false;
   for (std::size_t i = 0; i < st.solver.instruments.size(); ++i) {
     const InstrumentState& in = st.solver.instruments[i];
     if (in.drive.depth > 0.0) m.tip_path[i] += (in.rod.x.back() - old_tips[i]).norm();
@@ -273,6 +290,20 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
       for (const NodeContact& c : ws.contacts(static_cast<int>(i)))
         f = std::max(f, c.lambda_n / dt);
     m.peak_wall_force[i] = std::max(m.peak_wall_force[i], f);
+    // A node outside the vessel (physics.md 6.3), as this step's contact queries saw it.
+    const NodeEscape e = in.parked ? NodeEscape{} : ws.escape(static_cast<int>(i));
+    if (e.node >= 0) {
+      EscapeRecord& rec = m.escapes[i];
+      if (rec.steps == 0) {
+        rec.time = st.time();
+        rec.node = e.node;
+        rec.distance = e.distance;
+        rec.exit = e.exit;
+      }
+      ++rec.steps;
+      rec.max_distance = std::max(rec.max_distance, e.distance);
+      escaped = true;
+    }
     m.peak_axial_force[i] = std::max(m.peak_axial_force[i], std::abs(in.drive.axial_force));
     m.peak_torque[i] = std::max(m.peak_torque[i], std::abs(in.drive.torque));
     // NaN while outside: no jump is counted across an insertion or a withdrawal.
@@ -285,6 +316,7 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
       last = std::nan("");
     }
   }
+  m.escape_steps += escaped ? 1 : 0;
 }
 
 void check_landmarks(const SimModel& md, SimState& st) {

@@ -41,6 +41,34 @@ bool ProcedureWall::moves_near(const Vec3& centre, double radius) const {
   return false;
 }
 
+std::span<const WallExit> ProcedureWall::exits() {
+  if (exits_.size() != exits_rest.size()) {
+    exits_ = exits_rest;
+    exits_time_ = motion ? -1.0 : time_;
+  }
+  if (motion && exits_time_ != time_) {
+    const double c = motion->cardiac_waveform(time_);
+    const double r = motion->respiratory_waveform(time_);
+    for (std::size_t k = 0; k < exits_.size(); ++k)
+      exits_[k].centre = exits_rest[k].centre + c * exit_amp_c[k] + r * exit_amp_r[k];
+    exits_time_ = time_;
+  }
+  return exits_;
+}
+
+void make_exits(const VesselTree& tree, const CardiacMotion* motion, ProcedureWall& wall) {
+  wall.exits_rest.clear();
+  wall.exit_amp_c.clear();
+  wall.exit_amp_r.clear();
+  for (const OpenEnd& e : open_ends(tree)) {
+    wall.exits_rest.push_back({e.centre, e.outward, e.radius});
+    Vec3 a_c = Vec3::Zero(), a_r = Vec3::Zero();
+    if (motion) motion->amplitudes(e.centre, a_c, a_r);
+    wall.exit_amp_c.push_back(a_c);
+    wall.exit_amp_r.push_back(a_r);
+  }
+}
+
 Vec3 ProcedureWall::velocity(const SphereContact& hit) const {
   return lumen->velocity(hit);
 }

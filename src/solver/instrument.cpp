@@ -9,6 +9,7 @@
 #include <cmath>
 
 #include "scratch.h"
+#include "tsan_tasks.h"
 
 namespace vcsim::internal {
 
@@ -113,11 +114,38 @@ void add_sheath_contacts(const Inst& in, const SolverSettings& set) {
   }
 }
 
+// How far beyond an open end's plane (m, past the node's radius) a node still counts as having
+// left through it. A node is queried again each time it has moved about a millimetre (its
+// clearance), so it cannot pass this band unseen; beyond it the plane's far side may hold other
+// vessels.
+constexpr double kExitBand = 20e-3;
+
+// The escape check on a node just queried (physics.md 6.3), the cost of a compare per contact
+// and a dot product per open end: behind the lumen's wall (not a stent's: a node between a
+// stent and the wall is in the vessel) by more than its radius r, or through an open end's disc
+// beyond its plane by more than r. Keeps the step's farthest.
+void note_escape(InstrumentScratch& w, int i, const Vec3& x, double r, const SphereContact& h,
+                 std::span<const WallExit> exits) {
+  NodeEscape& e = w.escape;
+  if (h.touching && h.centre_outside && h.triangle >= 0 && h.distance > r &&
+      h.distance > e.distance)
+    e = {i, h.distance, -1};
+  for (std::size_t k = 0; k < exits.size(); ++k) {
+    const WallExit& ex = exits[k];
+    const Vec3 rel = x - ex.centre;
+    const double beyond = rel.dot(ex.outward);
+    if (beyond <= r || beyond > r + kExitBand || beyond <= e.distance) continue;
+    const double lateral = ex.radius + r;
+    if ((rel - beyond * ex.outward).squaredNorm() < lateral * lateral)
+      e = {i, beyond, static_cast<int>(k)};
+  }
+}
+
 // Finds the contacts of the free nodes. A node is queried with a radius reaching
 // coherence_margin beyond its contact reach; if that finds no wall, the node is skipped until it
 // (or the wall) has moved far enough to close the gap.
-void detect_contacts(const Inst& in, VesselWall& wall, const SolverSettings& set,
-                     StepProfile* prof) {
+void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit> exits,
+                     const SolverSettings& set, StepProfile* prof) {
   const RodModel& md = in.model();
   const RodState& st = in.rod();
   InstrumentState& s = *in.st;
@@ -156,6 +184,7 @@ void detect_contacts(const Inst& in, VesselWall& wall, const SolverSettings& set
     const int i = w.query_nodes[k];
     const SphereContact& h = w.hits[k];
     const double r = node_radius(md, i);
+    note_escape(w, i, st.x[i], r, h, exits);
     s.query_centre[i] = st.x[i];
     // The wall's travel counts from this query on, unless no moving part can reach its sphere.
     auto mark = [&](double clearance) {
@@ -568,9 +597,15 @@ void remove_coupling_bias(const Pair& cp, const Inst& in, const Inst& out, doubl
 template <class F>
 void for_each_active(std::span<Inst> insts, bool parallel, F&& f) {
   if (parallel) {
+#if defined(__SANITIZE_THREAD__)
+    tsan_chunks(insts.size(), 1, [&](std::size_t k, std::size_t) {
+      if (!insts[k].parked()) f(k);
+    });
+#else
     tbb::parallel_for(std::size_t{0}, insts.size(), [&](std::size_t k) {
       if (!insts[k].parked()) f(k);
     });
+#endif
   } else {
     for (std::size_t k = 0; k < insts.size(); ++k)
       if (!insts[k].parked()) f(k);
@@ -657,10 +692,11 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
   }
   const double t_detect = tick() - t3;
   t_coup += t_detect;
+  const std::span<const WallExit> exits = collide ? wall->exits() : std::span<const WallExit>();
   for (const Inst& in : insts) {
     if (in.parked()) continue;
     if (collide) {
-      detect_contacts(in, *wall, set, &p);
+      detect_contacts(in, *wall, exits, set, &p);
     } else {
       in.w->contacts.clear();
     }

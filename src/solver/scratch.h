@@ -36,6 +36,8 @@ struct InstrumentScratch {
   std::vector<int> rim_of;           // (n) the rim contact of the edge from node i (-1: none)
   std::vector<int> rim_pair;         // (n)
   std::array<double, 3> stage_us{};  // profile scratch: this instrument's stage times (us)
+  // The node farthest outside the vessel so far in this step (reset by each try of the step).
+  NodeEscape escape;
 
   void resize(const RodModel& md);
 };

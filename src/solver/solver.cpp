@@ -142,6 +142,7 @@ void advance(const SolverModel& md, SolverState& st, SolverScratch& s, VesselWal
   const SolverSettings& set = md.settings[n - 1];
   const std::size_t ni = st.instruments.size();
   bind(md, st, s);
+  for (internal::InstrumentScratch& w : s.inst) w.escape = NodeEscape{};
   std::fill(s.fine_force.begin(), s.fine_force.end(), 0.0);
   std::fill(s.fine_torque.begin(), s.fine_torque.end(), 0.0);
   for (int k = 1; k <= n; ++k) {
@@ -494,6 +495,10 @@ bool SolverWorkspace::sheathed(int instrument, int node) const {
   return s_->inst.at(instrument).sheathed.at(node) != 0;
 }
 
+NodeEscape SolverWorkspace::escape(int instrument) const {
+  return s_->inst.at(instrument).escape;
+}
+
 // --- step ----------------------------------------------------------------------------------------
 
 StepInfo solver_step(const SolverModel& md, SolverState& st, SolverWorkspace& ws, VesselWall* wall,
@@ -548,6 +553,7 @@ StepInfo solver_step(const SolverModel& md, SolverState& st, SolverWorkspace& ws
       for (Vec3& v : in.rod.v) v.setZero();
       for (Vec3& w : in.rod.omega) w.setZero();
     }
+    for (internal::InstrumentScratch& w : s.inst) w.escape = NodeEscape{};
     info.rolled_back = true;
   }
   st.time += md.dt();

@@ -268,15 +268,18 @@ TEST(Igtl, DisconnectLeavesInstrumentsWhereTheyAreAndStopsMotion) {
   EXPECT_DOUBLE_EQ(cmd.balloon_pressure, 6.0 * 101325.0);
   EXPECT_DOUBLE_EQ(cmd.syringe_flow, 0.0 * 1e-6);
 
-  // A new client picks up from there; a second one replaces it.
+  // A new client picks up from there; a second one is refused while it is connected.
   Client a, b;
   ASSERT_TRUE(a.connect(server.port()));
   ASSERT_TRUE(wait_until([&] { return server.stats().connections == 2; }));
-  ASSERT_TRUE(b.connect(server.port()));
-  ASSERT_TRUE(wait_until([&] { return server.stats().connections == 3; }));
-  ASSERT_TRUE(b.send_sensor("guidewire", {25.0, 90.0}));
+  ASSERT_TRUE(b.connect(server.port()));  // the kernel accepts; the server closes it at once
+  ASSERT_TRUE(wait_until([&] { return server.stats().clients_refused == 1; }));
+  b.send_sensor("guidewire", {99.0, 0.0});  // may fail: the connection is closed
+  ASSERT_TRUE(a.send_sensor("guidewire", {25.0, 90.0}));
   ASSERT_TRUE(wait_until([&] { return poll(server).drive[kGuidewire].translation == mm(25.0); }));
-  EXPECT_EQ(server.stats().disconnections, 2u);
+  EXPECT_EQ(server.stats().connections, 2u);
+  EXPECT_EQ(server.stats().disconnections, 1u);
+  EXPECT_TRUE(server.stats().connected);
 }
 
 // A header version 2 message (OpenIGTLink 3, what recent 3D Slicer sends): extended header,

@@ -81,6 +81,62 @@ TEST(RunCli, UnreachedTargetEndsWithAReport) {
   EXPECT_FALSE(j["landmarks"][1]["reached"].get<bool>());
 }
 
+// No silent escape (physics.md 6.3): a straight tube open at its start, the access 190 mm along
+// it heading there, and a timeline pushing a 0.014" wire 210 mm in 2.1 s, out of the open start.
+// The escape is reported once on the console and in metrics.json, and the run exits with status
+// 4; with --stop-on-escape (or the scenario's stop_on_escape) it ends at that step.
+TEST(RunCli, AnEscapeIsReportedAndCanStopTheRun) {
+  const fs::path d = scratch("escape");
+  write(d / "tube.json", R"({"format": "vcsim-anatomy", "version": 1, "name": "tube",
+    "coordinates": "LPS", "open_start": true, "access": {"segment": "tube", "distance_mm": 190},
+    "segments": [{"name": "tube", "kind": "artery", "parent": null,
+                  "points_mm": [[0, 0, 0], [0, 0, 100], [0, 0, 200]], "radius_mm": 2}]})");
+  write(d / "timeline.json", R"({"keyframes": [
+    {"t_s": 0, "instruments": {"wire": {"translation_mm": 0, "rotation_deg": 0}}},
+    {"t_s": 2.1, "instruments": {"wire": {"translation_mm": 210, "rotation_deg": 0}}}]})");
+  write(d / "s.json", R"({"format": "vcsim-scenario", "version": 1, "name": "inlet",
+    "anatomy": "tube.json", "motion": {"beating": false}, "dt_ms": 0.5, "time_limit_s": 3,
+    "sheath_length_mm": 10,
+    "instruments": [{"name": "wire", "catalogue": "wire-014-floppy", "max_nodes": 160,
+                     "tip_segment_mm": 1}],
+    "input": {"type": "timeline", "file": "timeline.json"}})");
+  // The same scene stopping on it by the scenario's key.
+  std::string keyed = slurp(d / "s.json");
+  keyed.insert(keyed.find("\"time_limit_s\""), "\"stop_on_escape\": true, ");
+  write(d / "keyed.json", keyed);
+  const std::string where = "open end of 'tube' (start)";
+  for (const int how : {0, 1, 2}) {  // --stop-on-escape, the scenario's key, neither
+    const bool stop = how < 2;
+    const fs::path out = d / ("out" + std::to_string(how));
+    const CliResult r = run_cli("run " + (d / (how == 1 ? "keyed.json" : "s.json")).string() +
+                                " --no-frames --no-report " +
+                                (how == 0 ? "--stop-on-escape " : "") + "--out " + out.string());
+    EXPECT_EQ(r.status, 4) << r.out << r.err;
+    const std::size_t at = r.err.find("run: ESCAPE: ");
+    ASSERT_NE(at, std::string::npos) << r.err;
+    EXPECT_EQ(r.err.find("run: ESCAPE: ", at + 1), std::string::npos) << "reported once: " << r.err;
+    EXPECT_NE(r.err.find("'wire' node", at), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(where, at), std::string::npos) << r.err;
+    const auto j = nlohmann::json::parse(slurp(out / "metrics.json"));
+    EXPECT_FALSE(j["success"].get<bool>());
+    EXPECT_EQ(j["stopped_on_escape"].get<bool>(), stop);
+    const auto& e = j["instruments"][0]["escape"];
+    ASSERT_TRUE(e.is_object()) << j["instruments"][0].dump();
+    EXPECT_EQ(e["where"].get<std::string>(), where);
+    EXPECT_GT(e["distance_mm"].get<double>(), 0.17);  // the wire's radius
+    // The tip passes the open start at 190 mm inserted, 1.9 s in.
+    EXPECT_GT(e["first_time_s"].get<double>(), 1.9);
+    EXPECT_LT(e["first_time_s"].get<double>(), 1.95);
+    if (stop) {
+      EXPECT_EQ(j["escape_steps"].get<int>(), 1);
+      EXPECT_NEAR(j["sim_time_s"].get<double>(), e["first_time_s"].get<double>(), 1e-9);
+    } else {
+      EXPECT_GT(j["escape_steps"].get<int>(), 1);
+      EXPECT_NEAR(j["sim_time_s"].get<double>(), 2.1, 1e-3);
+    }
+  }
+}
+
 TEST(RunCli, BadInputExitsWithTwo) {
   const fs::path d = scratch("bad");
   write(d / "timeline.json", kTimeline);

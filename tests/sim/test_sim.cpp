@@ -13,6 +13,7 @@
 #include "vcsim/haptics.h"
 #include "vcsim/sim.h"
 
+#include "balloon_scene.h"
 #include "jl4_scene.h"
 
 namespace vcsim {
@@ -319,6 +320,48 @@ TEST(Simulator, ScenarioNamesAreCheckedAgainstAnatomyAndCatalogue) {
   EXPECT_THROW(Simulator{sc}, InputError);
 }
 
+// No silent escape (physics.md 6.3): a straight tube open at its start (z = 0), the access 190
+// mm along it heading for that start (test::tube_scenario). A 0.014" wire pushed 205 mm leaves
+// through the open start: counted from the step its tip is more than its radius beyond it,
+// with that open end named; the same wire pushed 185 mm, its part outside the body lying beyond
+// the tube's other open end, has none.
+TEST(Escape, AWirePushedOutOfAnOpenInletIsCounted) {
+  const auto push = [](double to, const char* dir) {
+    test::TubeSpecs t;
+    t.radius_mm = 2.0;
+    Simulator sim(
+        test::tube_scenario(std::filesystem::temp_directory_path() / dir, t,
+                            R"([{"name": "wire", "catalogue": "wire-014-floppy", "max_nodes": 160,
+             "tip_segment_mm": 1}])"));
+    StepCommands cmds;
+    cmds.reset(1);
+    cmds.drive[0].mode = DriveCommand::Mode::kPosition;
+    const double speed = 0.1;  // m/s
+    while (sim.time() < to / speed + 0.1) {
+      cmds.drive[0].translation = std::min(to, speed * (sim.time() + sim.dt()));
+      sim.step(cmds);
+    }
+    EXPECT_EQ(sim.metrics().rollbacks, 0);
+    return std::pair(sim.metrics(), sim.rod_model(0).outer_radius.back());
+  };
+  const auto [out, r] = push(0.205, "vcsim_escape_out");
+  ASSERT_EQ(out.escapes.size(), 1u);
+  const EscapeRecord& e = out.escapes[0];
+  EXPECT_GT(out.escape_steps, 0);
+  EXPECT_EQ(e.steps, out.escape_steps);
+  EXPECT_EQ(e.exit, 0) << "the tube's start, the first of open_ends()";
+  EXPECT_GT(e.distance, r);
+  EXPECT_LT(e.distance, r + 2e-3);
+  // The tip is (190 mm - depth) along the tube; depth = 0.1 m/s * t.
+  EXPECT_GE(e.time, (0.190 + r) / 0.1);
+  EXPECT_LE(e.time, (0.190 + r + 3e-3) / 0.1);
+  EXPECT_GT(e.max_distance, 10e-3) << "seen on its way out, 15 mm beyond";
+  const SimMetrics in = push(0.185, "vcsim_escape_in").first;
+  EXPECT_EQ(in.escape_steps, 0);
+  EXPECT_EQ(in.escapes[0].steps, 0);
+  EXPECT_LT(in.escapes[0].time, 0.0);
+}
+
 // The autopilot on the default scenario, physics only: the J wire is steered from the groin over
 // the iliac bifurcation and up the aorta into the ascending aorta, acting only through the hub.
 TEST(Autopilot, DefaultScenarioReachesTheAscendingAorta) {
@@ -341,6 +384,7 @@ TEST(Autopilot, DefaultScenarioReachesTheAscendingAorta) {
   EXPECT_LT(m.landmarks[0].time, budget);
   EXPECT_FALSE(pilot.failed()) << pilot.status();
   EXPECT_EQ(m.rollbacks, 0);
+  EXPECT_EQ(m.escape_steps, 0) << "an instrument left the vessel";
   // The catheter followed the wire over the arch (its tip 40 mm behind): its tip is in the
   // aorta, or at the mouth of a branch of the arch, where the Judkins tip, riding the arch's outer
   // curve, may catch (within the parent's radius of the branch's first centreline point, which
@@ -375,6 +419,7 @@ TEST(Autopilot, DefaultScenarioReachesEveryLandmark) {
   }
   EXPECT_FALSE(pilot.failed()) << pilot.status();
   EXPECT_EQ(sim.metrics().rollbacks, 0);
+  EXPECT_EQ(sim.metrics().escape_steps, 0) << "an instrument left the vessel";
   for (std::size_t k = 0; k < sc.landmarks.size(); ++k) {
     const LandmarkRecord& l = sim.metrics().landmarks[k];
     EXPECT_TRUE(l.reached) << sc.landmarks[k].name;

@@ -83,9 +83,11 @@ TEST(Solver, HardPushIntoADeadEndStaysInsideForTenSeconds) {
   s.rod.gravity = Vec3(0, -9.81, 0);
   DriveCommand push{DriveCommand::Mode::kVelocity, 0.1, 0.0};  // 100 mm/s, on and on
   double worst = 0.0;
+  int escapes = 0;  // steps in which the escape check saw a node out (physics.md 6.3)
   StaticWall wall = tube.wall();
   for (int k = 0; k < 10000; ++k) {
     inst.step(&wall, s, push);
+    escapes += inst.ws.escape(0).node >= 0 ? 1 : 0;
     if (k % 50 != 0 && k < 9990) continue;
     for (int i = inst.drive().first_free; i < inst.md().n; ++i) {
       const Vec3& x = inst.rod().x[i];
@@ -96,6 +98,7 @@ TEST(Solver, HardPushIntoADeadEndStaysInsideForTenSeconds) {
     }
   }
   EXPECT_LT(worst, 0.10) << "a node left the lumen by more than 10 % of its radius";
+  EXPECT_EQ(escapes, 0);
   // It really was a hard push: the whole rod is crammed into the blind tube. (The hand force of
   // this mass-scaled rod is dominated by its inflated inertia; DriveFeelsTheDeadEnd checks the
   // quasi-static force.)
@@ -340,4 +343,77 @@ TEST(Solver, ParallelWallQueriesGiveTheSameSteps) {
   EXPECT_EQ(serial, parallel);
   EXPECT_EQ(serial_queries, parallel_queries);
   EXPECT_GE(parallel_queries, 2 * StaticWall::kParallelChunk) << "batches large enough to split";
+}
+
+// --- escape (physics.md 6.3) ---------------------------------------------------------------------
+
+// A short free rod across the wall of a straight tube (radius 2 mm) at z = 30 mm, along +x from
+// the axis: the escape check sees the node farthest behind the wall that its query reaches, and
+// only a node more than its radius out.
+TEST(Escape, ANodeBehindTheWallByMoreThanItsRadiusIsSeen) {
+  StraightTube tube(2.0e-3, 0.06, /*cap=*/false);
+  auto first_step = [&](double length, int segments) {
+    RodDef d = test::free_rod(length, segments, 0.2e-3, 2e9);
+    d.base_position = Vec3(0, 0, 0.03);
+    d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), Vec3::UnitX());
+    test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.0, 0.0});
+    SolverSettings s;
+    s.rod.dt = 1e-4;
+    StaticWall wall = tube.wall();
+    rig.step(&wall, s, std::span<const DriveCommand>(std::vector<DriveCommand>(1)));
+    return std::pair(rig.ws.escape(0), static_cast<int>(rig.contacts().size()));
+  };
+  // Nodes every 0.4 mm to 3.2 mm: 0.4, 0.8 and 1.2 mm behind the wall. The query (node radius 0.2
+  // mm + 0.2 mm contact margin + 0.6 mm coherence margin) reaches 1 mm: the node 0.8 mm out.
+  const auto [far, far_contacts] = first_step(3.2e-3, 8);
+  EXPECT_EQ(far.node, 7);
+  EXPECT_EQ(far.exit, -1);
+  EXPECT_NEAR(far.distance, 0.8e-3, 0.02e-3);  // the tube's 24 facets lie within 17 um of 2 mm
+  EXPECT_GE(far_contacts, 2);
+  // 0.1 mm behind the wall, less than its radius: a contact, not an escape.
+  const auto [near, near_contacts] = first_step(2.1e-3, 3);
+  EXPECT_EQ(near.node, -1) << near.distance;
+  EXPECT_GE(near_contacts, 1) << "the node was queried and found behind the wall";
+}
+
+// A rod pushed straight along a tube (radius 2 mm, 40 mm) out of its open end. With the end as
+// the wall's exit, the escape is seen once a node is more than its radius beyond the end's plane
+// and before it is 1.5 mm further (a node is queried again after each ~0.6 mm of travel), and
+// never before. The tube's start is an exit too: the rod's part outside the body lies beyond
+// it, on the sheath's axis, and is not an escape.
+TEST(Escape, ANodePushedOutOfAnOpenEndIsSeen) {
+  const double length = 0.04, radius = 2.0e-3;
+  StraightTube tube(radius, length, /*cap=*/false);
+  RodDef d = test_rod(0.1, 60);
+  d.density = scaled_density(d, 1e-3);
+  test::Rig inst = test::driven(d, Sheath{}, ContactMaterial{0.0, 0.0}, 0.02);
+  SolverSettings s;
+  s.rod.dt = 1e-3;
+  s.rod.drag = 20.0;
+  StaticWall wall = tube.wall();
+  wall.set_exits(
+      {{Vec3(0, 0, length), Vec3::UnitZ(), radius}, {Vec3::Zero(), -Vec3::UnitZ(), radius}});
+  const double r = d.outer_radius;
+  const DriveCommand push{DriveCommand::Mode::kVelocity, 0.05, 0.0};
+  int seen_at = -1;
+  NodeEscape first;
+  for (int k = 0; k < 600 && seen_at < 0; ++k) {
+    double before = -1.0;  // the farthest free node's distance beyond the end, before the step
+    for (int i = inst.drive().first_free; i < inst.md().n; ++i)
+      before = std::max(before, inst.rod().x[i].z() - length);
+    inst.step(&wall, s, push);
+    const NodeEscape e = inst.ws.escape(0);
+    if (e.node < 0) {
+      EXPECT_LT(before, r + 1.5e-3) << "step " << k << ": a node this far out was not seen";
+      continue;
+    }
+    EXPECT_GT(before, r) << "step " << k << ": seen before any node was out";
+    seen_at = k;
+    first = e;
+  }
+  ASSERT_GE(seen_at, 0) << "the rod went out of the open end unseen";
+  EXPECT_EQ(first.exit, 0);
+  EXPECT_EQ(first.node, inst.md().n - 1);
+  EXPECT_GT(first.distance, r);
+  EXPECT_LT(first.distance, r + 1.5e-3);
 }
