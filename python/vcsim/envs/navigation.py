@@ -318,10 +318,11 @@ class ArchNavigation(_Navigation):
 
     Action: (1, 2) [translation m/s, rotation rad/s] at control_hz (7.5 Hz), limited to
     velocity_limit (50 mm/s, pi rad/s). Success: the tip within target_tolerance (5 mm) of the
-    target along the vessel (its projection on the centreline). Episodes end at max_steps (1000). Randomised per reset (randomize=True): the arch
-    (typical or elongated-tortuous built-in, arch elongation 0-25 mm, tortuosity 0-3 mm rms,
-    aortic and branch calibre x0.85-1.15), the wire (angled or J tip), the target branch and
-    depth (50-90 % of the branch) and the C-arm (LAO 20-50 deg, cranial -10-10 deg).
+    target along the vessel (its projection on the centreline). Episodes end at max_steps
+    (1000). Randomised per reset (randomize=True): the arch (typical or elongated-tortuous
+    built-in, arch elongation 0-25 mm, tortuosity 0-3 mm rms, aortic and branch calibre
+    x0.85-1.15), the wire among `wires` (default: the angled hydrophilic 0.035" only), the target
+    branch and depth (50-90 % of the branch) and the C-arm (LAO 20-50 deg, cranial -10-10 deg).
     """
 
     TARGETS = ("brachiocephalic", "left_common_carotid", "left_subclavian")
