@@ -145,11 +145,12 @@ struct AnatomyVariation {
   // with wavelengths 0.75..1.5 times tortuosity_wavelength (40..400 mm).
   double tortuosity = 0.0;
   double tortuosity_wavelength = 80e-3;
-  std::uint64_t seed = 1;  // of the displacement field
+  std::uint64_t seed = 1;                          // of the displacement field
   void validate(const std::string& source) const;  // InputError naming the field
 };
 // The tree varied: calibre always; shape (elongation, tortuosity) only for a tree without a heart
-// (InputError otherwise: coronaries ride on the heart). The access and target keep their arc length.
+// (InputError otherwise: coronaries ride on the heart). The access and target keep their arc
+// length.
 VesselTree vary_anatomy(const VesselTree& tree, const AnatomyVariation& variation);
 // The aortic-arch navigation anatomy: the built-in patient's aorta from the valve to the
 // diaphragm with its sinuses and the three supra-aortic branches (no heart, no coronaries), the
