@@ -13,6 +13,9 @@
 #include <sstream>
 #include <thread>
 
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
 #include "vcsim/anatomy.h"
 #include "vcsim/render.h"
 #include "vcsim/sim.h"
@@ -152,6 +155,15 @@ class PySimulator {
 
   void step(const py::object& action, int steps, const std::string& mode, double syringe_flow,
             double balloon_pressure) {
+    prepare(action, steps, mode, syringe_flow, balloon_pressure);
+    py::gil_scoped_release nogil;
+    advance(steps);
+  }
+
+  // step() in two halves: prepare() checks the arguments and sets the commands (with the GIL),
+  // advance() steps (without it), so that step_many() can step several simulators at once.
+  void prepare(const py::object& action, int steps, const std::string& mode, double syringe_flow,
+               double balloon_pressure) {
     if (steps < 1)
       throw py::value_error("steps: expected at least 1, got " + std::to_string(steps));
     for (auto [v, name] :
@@ -161,8 +173,28 @@ class PySimulator {
     read_action(action, mode);
     cmd_.syringe_flow = syringe_flow;
     cmd_.balloon_pressure = balloon_pressure;
-    py::gil_scoped_release nogil;
-    for (int s = 0; s < steps; ++s) sim_->step(cmd_);
+  }
+  void advance(int steps) {
+    auto run = [&] {
+      for (int s = 0; s < steps; ++s) sim_->step(cmd_);
+    };
+    if (arena_)
+      arena_->execute(run);
+    else
+      run();
+  }
+
+  // The most threads a step may use: 0 for as many as the process allows (TBB's default), 1 to
+  // keep the step on the calling thread, which is what several simulators stepped side by side
+  // in threads want (otherwise each one's parallel collision queries compete for the same cores).
+  // The results are the same bit for bit whatever the setting.
+  int threads() const { return threads_; }
+  void set_threads(int n) {
+    if (n < 0) throw py::value_error("threads: expected 0 (as many as allowed) or more, got " +
+                                     std::to_string(n));
+    if (n == threads_) return;
+    threads_ = n;
+    arena_ = n > 0 ? std::make_unique<tbb::task_arena>(n) : nullptr;
   }
 
   Array depths() const {
@@ -278,6 +310,8 @@ class PySimulator {
   std::unique_ptr<Simulator> sim_;
   StepCommands cmd_;
   std::vector<HandFeedback> fb_;
+  int threads_ = 0;
+  std::unique_ptr<tbb::task_arena> arena_;
 };
 
 Scenario scenario_from(const py::object& obj) {
@@ -478,6 +512,28 @@ CArmPose make_pose(double primary_deg, double secondary_deg, double fov, double 
 
 }  // namespace
 
+// Steps several simulators at once, each `steps[i]` times with its action, on TBB's worker
+// threads with the GIL released: what a vector environment's step does, without a Python
+// thread pool's hand-offs. Every argument is checked before any simulator moves.
+static void step_many(const std::vector<PySimulator*>& sims, const py::list& actions,
+               const std::vector<int>& steps, const std::string& mode) {
+  const std::size_t n = sims.size();
+  if (actions.size() != n || steps.size() != n)
+    throw py::value_error("step_many: expected as many actions and step counts as simulators (" +
+                          std::to_string(n) + "), got " + std::to_string(actions.size()) +
+                          " and " + std::to_string(steps.size()));
+  for (std::size_t i = 0; i < n; ++i) {
+    if (sims[i] == nullptr) throw py::value_error("simulators: expected Simulator, got None");
+    for (std::size_t j = 0; j < i; ++j)
+      if (sims[j] == sims[i])
+        throw py::value_error("simulators: the same Simulator appears twice (" +
+                              std::to_string(j) + " and " + std::to_string(i) + ")");
+  }
+  for (std::size_t i = 0; i < n; ++i) sims[i]->prepare(actions[i], steps[i], mode, 0.0, 0.0);
+  py::gil_scoped_release nogil;
+  tbb::parallel_for(std::size_t{0}, n, [&](std::size_t i) { sims[i]->advance(steps[i]); });
+}
+
 PYBIND11_MODULE(_vcsim, m) {
   m.doc() = "vcsim: a simulator for training cardiovascular interventions (docs/python.md)";
   py::register_exception<InputError>(m, "InputError", PyExc_ValueError);
@@ -624,6 +680,9 @@ PYBIND11_MODULE(_vcsim, m) {
           py::arg("snapshot"))
       .def_property_readonly("time", [](const PySimulator& s) { return s.sim().time(); })
       .def_property_readonly("dt", [](const PySimulator& s) { return s.sim().dt(); })
+      .def_property("threads", &PySimulator::threads, &PySimulator::set_threads,
+                    "The most threads step() may use: 0 (default) as many as the process "
+                    "allows, 1 the calling thread only; the results are the same either way")
       .def_property_readonly("num_instruments", &PySimulator::n)
       .def_property_readonly("instrument_names",
                              [](const PySimulator& s) { return s.sim().instrument_names(); })
@@ -728,4 +787,10 @@ PYBIND11_MODULE(_vcsim, m) {
              std::uint64_t seed) { return f.image(s, pose, dose, seed); },
           py::arg("sim"), py::arg("carm"), py::kw_only(), py::arg("dose") = 1e4,
           py::arg("seed") = 1, "(size, size) uint8 grey image, row 0 at the top");
+
+  m.def("step_many", &step_many, py::arg("sims"), py::arg("actions"), py::arg("steps"),
+        py::kw_only(), py::arg("mode") = "velocity",
+        "Steps simulators sims[i] steps[i] times with actions[i], in parallel threads with the "
+        "GIL released (every argument checked first); a simulator's `threads` setting holds "
+        "inside its own step");
 }

@@ -190,3 +190,39 @@ def test_stepping_releases_the_gil(arch_tree):
     for t in threads:
         t.join()
     assert sims[0].state_hash == sims[1].state_hash == alone.state_hash
+
+
+def test_step_many_and_one_thread_give_the_same_states(arch_tree):
+    """step_many steps simulators together as each steps alone, and a simulator kept to one
+    thread (threads=1) follows the same trajectory bit for bit as one using every core."""
+    alone = vcsim.Simulator(arch_scenario(), anatomy=arch_tree)
+    assert alone.threads == 0
+    push(alone, 0.06, 1.0, rot=0.5)
+    one = vcsim.Simulator(arch_scenario(), anatomy=arch_tree)
+    one.threads = 1
+    assert one.threads == 1
+    push(one, 0.06, 1.0, rot=0.5)
+    assert one.state_hash == alone.state_hash
+    sims = [vcsim.Simulator(arch_scenario(), anatomy=arch_tree) for _ in range(2)]
+    sims[1].threads = 1
+    n = round(1.0 / sims[0].dt)
+    vcsim.step_many(sims, [[[0.06, 0.5]], [[0.06, 0.5]]], [n // 2, n // 2])
+    vcsim.step_many(sims, [[[0.06, 0.5]], [[0.06, 0.5]]], [n - n // 2, n - n // 2])
+    assert sims[0].state_hash == sims[1].state_hash == alone.state_hash
+
+
+def test_step_many_checks_everything_before_stepping(arch_tree):
+    sims = [vcsim.Simulator(arch_scenario(), anatomy=arch_tree) for _ in range(2)]
+    h = [s.state_hash for s in sims]
+    with pytest.raises(ValueError, match="as many actions"):
+        vcsim.step_many(sims, [[[0.01, 0.0]]], [1, 1])
+    with pytest.raises(ValueError, match="appears twice"):
+        vcsim.step_many([sims[0], sims[0]], [[[0.01, 0.0]]] * 2, [1, 1])
+    # The second action is bad: neither simulator moves.
+    with pytest.raises(ValueError, match="finite"):
+        vcsim.step_many(sims, [[[0.01, 0.0]], [[float("nan"), 0.0]]], [1, 1])
+    with pytest.raises(ValueError, match="steps"):
+        vcsim.step_many(sims, [[[0.01, 0.0]]] * 2, [1, 0])
+    with pytest.raises(ValueError, match="threads"):
+        sims[0].threads = -1
+    assert [s.state_hash for s in sims] == h

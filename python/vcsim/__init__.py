@@ -2,7 +2,8 @@
 
 The compiled core (``vcsim._vcsim``) holds the engine: ``Simulator`` (step, snapshot, restore,
 state as numpy arrays), ``Anatomy`` (built-in and varied patients, centrelines), ``CArm``
-(poses and projection), ``Fluoroscopy`` (images) and ``AutopilotPolicy``. Units are SI
+(poses and projection), ``Fluoroscopy`` (images), ``AutopilotPolicy`` and ``step_many`` (several
+simulators stepped in parallel in one call). Units are SI
 (m, rad, N, s). ``vcsim.envs`` holds learning environments in Gymnasium's conventions.
 See docs/python.md.
 """
@@ -15,7 +16,8 @@ from ._vcsim import (  # noqa: F401
     InputError,
     Simulator,
     Snapshot,
+    step_many,
 )
 
 __all__ = ["Anatomy", "Autopilot", "AutopilotPolicy", "CArm", "Fluoroscopy", "InputError", "Simulator",
-           "Snapshot"]
+           "Snapshot", "step_many"]

@@ -2,10 +2,14 @@
 
     python3 -m vcsim.bench [--seconds 20] [--out bench.json]
 
-- env_steps_per_s: ArchNavigation control steps (7.5 Hz) per second of one thread, the same
-  anatomy every episode (random actions that mostly push; episodes that end are reset).
+- env_steps_per_s: ArchNavigation control steps (7.5 Hz) per second of one environment as built
+  by default (its physics may spread collision queries over the cores), the same anatomy every
+  episode (random actions that mostly push; episodes that end are reset).
+- env_steps_per_s_one_core: the same with the physics on one thread (threads=1): the rate per
+  core.
 - vector2_steps_per_s and vector2_speedup: the same with ThreadVectorEnv of 2 environments
-  (environment steps, both counted), and its ratio to one environment.
+  (environment steps, both counted), and its ratio to one environment as built by default;
+  vector2_per_core_ratio its ratio to env_steps_per_s_one_core.
 - reset_ms: median reset to a cached start (a snapshot restore and the first observation).
 - first_reset_s: a reset to a new anatomy (the scene built and its start made).
 """
@@ -59,14 +63,17 @@ def main(argv=None):
         env.reset(seed=s)
         resets.append(time.perf_counter() - t)
     one = _run(env, a.seconds, False)
+    env.threads = 1
+    one_core = _run(env, a.seconds, False)
     vec = envs.ThreadVectorEnv(envs.ArchNavigation, 2, **kw)
     two = _run(vec, a.seconds, True)
     vec.close()
     res = {"env": "ArchNavigation", "control_hz": env.control_hz, "dt_s": env.sim.dt,
            "physics_steps_per_env_step": env.control_steps,
            "wire_nodes": env.wire_nodes,
-           "env_steps_per_s": round(one, 1), "vector2_steps_per_s": round(two, 1),
-           "vector2_speedup": round(two / one, 3),
+           "env_steps_per_s": round(one, 1), "env_steps_per_s_one_core": round(one_core, 1),
+           "vector2_steps_per_s": round(two, 1), "vector2_speedup": round(two / one, 3),
+           "vector2_per_core_ratio": round(two / one_core, 3),
            "reset_ms": round(1e3 * float(np.median(resets)), 4),
            "first_reset_s": round(first_reset, 3), "cores": os.cpu_count(),
            "machine": platform.processor() or platform.machine()}

@@ -64,7 +64,7 @@ class _Navigation(Env):
     def __init__(self, *, control_hz=7.5, max_steps=1000, target_tolerance=5e-3,
                  observation="tracking2d", tracking_points=3, tracking_spacing=2e-3,
                  image_size=128, velocity_limit=(0.05, math.pi), randomize=True,
-                 start_cache=8, render_mode=None, dose=1e4):
+                 start_cache=8, render_mode=None, dose=1e4, threads=0):
         if observation not in ("tracking2d", "tracking3d", "image"):
             raise ValueError("observation: expected 'tracking2d', 'tracking3d' or 'image', got "
                              f"{observation!r}")
@@ -75,6 +75,8 @@ class _Navigation(Env):
                                 ("tracking_spacing", tracking_spacing, 1e-4, 0.05)):
             if not (lo <= float(v) <= hi):
                 raise ValueError(f"{name}: expected {lo} to {hi}, got {v!r}")
+        if int(threads) < 0:
+            raise ValueError(f"threads: expected 0 (as many as allowed) or more, got {threads!r}")
         if int(max_steps) < 1 or int(tracking_points) < 1 or int(start_cache) < 1:
             raise ValueError("max_steps, tracking_points and start_cache: expected at least 1")
         if len(velocity_limit) != 2 or min(velocity_limit) <= 0:
@@ -91,6 +93,8 @@ class _Navigation(Env):
         self.start_cache = int(start_cache)
         self.render_mode = render_mode
         self.dose = float(dose)
+        # The most threads a physics step may use (Simulator.threads); ThreadVectorEnv sets 1.
+        self.threads = int(threads)
         self._starts = collections.OrderedDict()  # start_key -> (sim, snapshot, autopilot)
         self._fluoro = {}  # id(sim) -> Fluoroscopy
         self._failed = {}  # start_key -> why its start could not be made
@@ -164,6 +168,7 @@ class _Navigation(Env):
         self._redraws = redraws
         sim, snap, pilot = self._starts[key]
         sim.restore(snap)
+        sim.threads = self.threads
         self.sim = sim
         self._start_autopilot = pilot
         self.episode = ep
@@ -178,6 +183,13 @@ class _Navigation(Env):
         return self._observe(), self._info(False)
 
     def step(self, action):
+        self.sim.step(self._begin_step(action), steps=self.control_steps)
+        return self._end_step()
+
+    # step() in three parts, so that ThreadVectorEnv steps several simulators in one call
+    # (vcsim.step_many) between the Python halves.
+    def _begin_step(self, action):
+        """Checks and clips an action; the simulator's action for it."""
         a = np.asarray(action, dtype=np.float64)
         if a.shape != self.action_space.shape:
             raise ValueError(f"action: expected shape {self.action_space.shape} "
@@ -188,7 +200,10 @@ class _Navigation(Env):
             raise RuntimeError("step() before reset()")
         a = np.clip(a, self.action_space.low, self.action_space.high)
         self._last_action[:] = a
-        self.sim.step(self._full_action(a), steps=self.control_steps)
+        return self._full_action(a)
+
+    def _end_step(self):
+        """After the physics of a control step: (obs, reward, terminated, truncated, info)."""
         self._steps += 1
         path = self._path_length()
         gained = self._path - path

@@ -9,6 +9,7 @@ import concurrent.futures
 
 import numpy as np
 
+from .. import _vcsim
 from ._spaces import Box, Dict
 
 __all__ = ["ThreadVectorEnv"]
@@ -33,9 +34,14 @@ class ThreadVectorEnv:
     ArchNavigation(observation="tracking3d"); ``ThreadVectorEnv([make_a, make_b])`` takes
     factories. reset(seed=s) seeds environment i with s + i, so a vector run gives the same
     episodes as stepping the environments one by one with those seeds.
+
+    Each environment's physics steps on its own pool thread only (``threads=1`` of the
+    environment, Simulator.threads), so that N environments keep N cores busy rather than each
+    one's parallel collision queries competing for the same cores; ``sim_threads=0`` leaves the
+    environments' own setting. The results are the same either way.
     """
 
-    def __init__(self, env_fns, num_envs=None, threads=None, **kwargs):
+    def __init__(self, env_fns, num_envs=None, threads=None, sim_threads=1, **kwargs):
         if callable(env_fns) and num_envs is not None:
             if int(num_envs) < 1:
                 raise ValueError(f"num_envs: expected at least 1, got {num_envs}")
@@ -46,11 +52,20 @@ class ThreadVectorEnv:
             raise ValueError("env_fns: expected an environment class or factory with num_envs, "
                              "or a non-empty list of factories")
         self.num_envs = len(self.envs)
+        if int(sim_threads) < 0:
+            raise ValueError(f"sim_threads: expected 0 or more, got {sim_threads!r}")
+        if int(sim_threads) > 0:
+            for e in self.envs:
+                if hasattr(e, "threads"):
+                    e.threads = int(sim_threads)
         self.single_observation_space = self.envs[0].observation_space
         self.single_action_space = self.envs[0].action_space
         self.observation_space = _batched(self.single_observation_space, self.num_envs)
         self.action_space = _batched(self.single_action_space, self.num_envs)
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=threads or self.num_envs)
+        # vcsim's own environments step their physics together (step_many); others in the pool.
+        self._together = all(hasattr(e, "_begin_step") and hasattr(e, "_end_step")
+                             for e in self.envs)
 
     def reset(self, *, seed=None, options=None):
         seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
@@ -64,9 +79,19 @@ class ThreadVectorEnv:
         if actions.shape != want:
             raise ValueError(f"actions: expected shape {want}, got {actions.shape}")
 
+        if self._together:
+            # The physics of every environment in one call, in parallel without the GIL.
+            full = [e._begin_step(a) for e, a in zip(self.envs, actions)]
+            _vcsim.step_many([e.sim for e in self.envs], full,
+                             [e.control_steps for e in self.envs])
+            ends = [e._end_step() for e in self.envs]
+        else:
+            ends = list(self._pool.map(lambda i: self.envs[i].step(actions[i]),
+                                       range(self.num_envs)))
+
         def one(i):
             env = self.envs[i]
-            obs, r, term, trunc, info = env.step(actions[i])
+            obs, r, term, trunc, info = ends[i]
             if term or trunc:
                 info = dict(info)
                 final_obs, final_info = obs, info
