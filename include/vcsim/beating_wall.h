@@ -20,6 +20,10 @@ class BeatingWall final : public VesselWall {
   // Moves the patches the spheres can touch to the current time, then queries them.
   void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
                      std::span<SphereContact> out) override;
+  // The same, with the leaf caches used for the lumen's part that never moves.
+  void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                     std::span<LeafCache* const> caches, double slack,
+                     std::span<SphereContact> out) override;
   // du/dt of the motion field at the rest point under the contact point.
   Vec3 velocity(const SphereContact& hit) const override;
   // max |a_cardiac| max |dc/dt| + max |a_resp| max |dr/dt| over the moving wall.

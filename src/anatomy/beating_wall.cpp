@@ -30,6 +30,13 @@ void BeatingWall::query_spheres(std::span<const Vec3> centres, std::span<const d
   lumen_->query_spheres(centres, radii, out);
 }
 
+void BeatingWall::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                                std::span<LeafCache* const> caches, double slack,
+                                std::span<SphereContact> out) {
+  lumen_->update(time_, centres, radii);
+  lumen_->query_spheres(centres, radii, caches, slack, out);
+}
+
 bool BeatingWall::moves_near(const Vec3& centre, double radius) const {
   return lumen_->moves_near(centre, radius);
 }

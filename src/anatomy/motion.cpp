@@ -456,6 +456,13 @@ BeatingLumenProfile BeatingLumen::update_all(double t) {
 void BeatingLumen::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
                                  std::span<SphereContact> out,
                                  const SphereQuerySettings& settings) const {
+  query_spheres(centres, radii, {}, 0.0, out, settings);
+}
+
+void BeatingLumen::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
+                                 std::span<LeafCache* const> caches, double slack,
+                                 std::span<SphereContact> out,
+                                 const SphereQuerySettings& settings) const {
   const PatchGrid* grid = phase_grids_.empty() ? nullptr : &phase_grids_[last_grid_];
   for (std::size_t i = 0; i < centres.size(); ++i) {
     const double rad = radii.size() == 1 ? radii[0] : radii[i];
@@ -466,7 +473,17 @@ void BeatingLumen::query_spheres(std::span<const Vec3> centres, std::span<const 
       const SphereContact sc = p.tree.query_sphere(p.mesh, centres[i], rad, settings);
       if (sc.triangle >= 0) merge.add(sc, p.global_triangle[sc.triangle]);
     };
-    if (!static_.global_triangle.empty()) consider(static_);
+    if (!static_.global_triangle.empty()) {
+      // The part that never moves keeps its leaves: a sphere that stays within its cache's
+      // reach skips the traversal of this, the largest tree.
+      if (!caches.empty() && caches[i] != nullptr) {
+        const SphereContact sc = static_.tree.query_sphere(static_.mesh, centres[i], rad, slack,
+                                                           *caches[i], settings);
+        if (sc.triangle >= 0) merge.add(sc, static_.global_triangle[sc.triangle]);
+      } else {
+        consider(static_);
+      }
+    }
     if (grid) {
       for_each_candidate(*grid, centres[i], rad + settings.escape_distance, [&](int pi) {
         const Patch& p = patches_[pi];
