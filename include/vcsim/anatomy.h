@@ -423,6 +423,13 @@ class BeatingLumen {
   // should include any escape distance the queries will use. Allocates nothing.
   BeatingLumenProfile update(double t, std::span<const Vec3> centres,
                              std::span<const double> radii);
+  // update(t, centres, radii) then query_spheres(centres, radii, caches, slack, out) in one pass:
+  // each sphere moves the patches it may touch as it meets them. The same patches move and the
+  // same contacts come out as from the two calls (a patch whose moved box overlaps a sphere is
+  // one whose box from the waveforms does), without walking the grid twice. Allocates nothing.
+  void move_and_query(double t, std::span<const Vec3> centres, std::span<const double> radii,
+                      std::span<LeafCache* const> caches, double slack,
+                      std::span<SphereContact> out);
   // Moves every patch (rendering, tests); the same as update() with spheres everywhere.
   BeatingLumenProfile update_all(double t);
 

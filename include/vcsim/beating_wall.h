@@ -14,7 +14,7 @@ class BeatingWall final : public VesselWall {
   explicit BeatingWall(BeatingLumen& lumen);
 
   // Time (s) the next queries see; the solver sets it before each (fine) step.
-  void set_time(double t) override { time_ = t; }
+  void set_time(double t) override;
   double time() const { return time_; }
 
   // Moves the patches the spheres can touch to the current time, then queries them.
@@ -33,6 +33,8 @@ class BeatingWall final : public VesselWall {
  private:
   BeatingLumen* lumen_;
   double time_ = 0.0;
+  // The waveforms and their rates at time_ (the same for every contact of a step).
+  double c_ = 0.0, r_ = 0.0, c_rate_ = 0.0, r_rate_ = 0.0;
   double speed_bound_ = 0.0;
 };
 

@@ -22,31 +22,43 @@ BeatingWall::BeatingWall(BeatingLumen& lumen) : lumen_(&lumen) {
   }
   speed_bound_ =
       1.05 * (lumen.max_cardiac_amplitude() * rc + lumen.max_respiratory_amplitude() * rr);
+  set_time(0.0);
 }
 
 void BeatingWall::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
                                 std::span<SphereContact> out) {
-  lumen_->update(time_, centres, radii);
-  lumen_->query_spheres(centres, radii, out);
+  lumen_->move_and_query(time_, centres, radii, {}, 0.0, out);
 }
 
 void BeatingWall::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
                                 std::span<LeafCache* const> caches, double slack,
                                 std::span<SphereContact> out) {
-  lumen_->update(time_, centres, radii);
-  lumen_->query_spheres(centres, radii, caches, slack, out);
+  lumen_->move_and_query(time_, centres, radii, caches, slack, out);
 }
 
 bool BeatingWall::moves_near(const Vec3& centre, double radius) const {
   return lumen_->moves_near(centre, radius);
 }
 
+void BeatingWall::set_time(double t) {
+  time_ = t;
+  const CardiacMotion& m = lumen_->motion();
+  c_ = m.cardiac_waveform(t);
+  r_ = m.respiratory_waveform(t);
+  c_rate_ = m.cardiac_rate(t);
+  r_rate_ = m.respiratory_rate(t);
+}
+
 Vec3 BeatingWall::velocity(const SphereContact& hit) const {
   const CardiacMotion& m = lumen_->motion();
   // The rest point under the contact: one fixed-point step X = x - u(x) (the field is smooth and
-  // its gradient small, so the error is second order in the displacement gradient).
-  const Vec3 rest = hit.point - m.displacement(hit.point, time_);
-  return m.velocity(rest, time_);
+  // its gradient small, so the error is second order in the displacement gradient). The
+  // displacement and velocity of CardiacMotion, with the step's waveforms evaluated once.
+  Vec3 a_c, a_r;
+  m.amplitudes(hit.point, a_c, a_r);
+  const Vec3 rest = hit.point - (c_ * a_c + r_ * a_r);
+  m.amplitudes(rest, a_c, a_r);
+  return c_rate_ * a_c + r_rate_ * a_r;
 }
 
 }  // namespace vcsim

@@ -499,6 +499,46 @@ void BeatingLumen::query_spheres(std::span<const Vec3> centres, std::span<const 
   }
 }
 
+void BeatingLumen::move_and_query(double t, std::span<const Vec3> centres,
+                                  std::span<const double> radii,
+                                  std::span<LeafCache* const> caches, double slack,
+                                  std::span<SphereContact> out) {
+  const double c = motion_.cardiac_waveform(t), r = motion_.respiratory_waveform(t);
+  last_time_ = t;
+  const PatchGrid* grid = nullptr;
+  if (!phase_grids_.empty()) {
+    last_grid_ = std::min(
+        static_cast<std::size_t>(std::lround(c * static_cast<double>(phase_grids_.size() - 1))),
+        phase_grids_.size() - 1);
+    grid = &phase_grids_[last_grid_];
+  }
+  for (std::size_t i = 0; i < centres.size(); ++i) {
+    const double rad = radii.size() == 1 ? radii[0] : radii[i];
+    SphereContactMerge merge;
+    if (!static_.global_triangle.empty()) {
+      const SphereContact sc =
+          !caches.empty() && caches[i] != nullptr
+              ? static_.tree.query_sphere(static_.mesh, centres[i], rad, slack, *caches[i])
+              : static_.tree.query_sphere(static_.mesh, centres[i], rad);
+      if (sc.triangle >= 0) merge.add(sc, static_.global_triangle[sc.triangle]);
+    }
+    if (grid) {
+      for_each_candidate(*grid, centres[i], rad, [&](int pi) {
+        Patch& p = patches_[pi];
+        // update()'s rule: moved when its box from the waveforms overlaps the sphere. A moved
+        // patch's box lies inside that box, so one that did not pass cannot be touched.
+        if (!overlaps(box_at(p, c, r), centres[i], rad)) return;
+        if (p.time != t) move_patch(p, c, r, t);
+        if (!overlaps(p.box, centres[i], rad)) return;
+        const SphereContact sc = p.tree.query_sphere(p.mesh, centres[i], rad);
+        if (sc.triangle >= 0) merge.add(sc, p.global_triangle[sc.triangle]);
+      });
+    }
+    const SphereContact merged = merge.result(centres[i], rad);
+    out[i] = merged.num_touching > 0 ? merged : SphereContact{};
+  }
+}
+
 void BeatingLumen::morph(std::span<const Vec3> rest_positions) {
   assert(rest_positions.size() + 1 == morph_start_.size());
   bool static_moved = false;
