@@ -182,7 +182,10 @@ Vec3 quasi_static_force(std::span<Inst> insts, std::size_t self, std::span<const
   };
   Vec3 q = Vec3::Zero();  // Q_i: the internal force of the edge distal to node i (none at the tip)
   const int first = std::max(1, in.drive().first_free);
-  Vec3 g = vertex_moment(md, st, md.n - 1);  // G at the distal vertex of edge i - 1
+  // G at vertex g_at (the distal vertex of the last edge that needed it): the moments are taken
+  // only at the nodes with a reaction candidate and their neighbours, most free nodes having none.
+  Vec3 g = Vec3::Zero();
+  int g_at = -1;
   std::array<Candidate, 2> cand;
   std::array<double, 2> s{};
   for (int i = md.n - 1; i >= first; --i) {
@@ -192,13 +195,12 @@ Vec3 quasi_static_force(std::span<Inst> insts, std::size_t self, std::span<const
       q += w.contacts[wc].lambda_t / dt;
     const Vec3 e = st.x[i] - st.x[i - 1];
     const double len = e.norm();
-    if (len < 1e-12) {
-      g = vertex_moment(md, st, i - 1);
-      continue;
-    }
-    const Vec3 dg = moment_change(md, st, i - 1, g);
+    if (len < 1e-12) continue;
     const int nc = candidates_of(i, cand);
     if (nc == 0) continue;
+    if (g_at != i) g = vertex_moment(md, st, i);
+    const Vec3 dg = moment_change(md, st, i - 1, g);
+    g_at = i - 1;
     if (std::abs(len / md.rest_length[i - 1] - 1.0) > kMaxStrain) {
       // A violated edge: its direction is not a rod's. A lumen or rim reaction there is the
       // coupling repairing the violation, a position fix-up that is not felt (as before, c_fix).
