@@ -4,16 +4,13 @@
 // binds to every interface (we listen on loopback by default), it cannot bind port 0 (tests need
 // a free port), and its blocking calls cannot be woken for a clean shutdown. Framing is checked
 // by hand so that a hostile header (a body size of 2^63, a truncated field) cannot reach the
-// library; byte order, CRC-64 and outgoing messages use libopenigtlink.
+// library (igtl_stream.cpp, which frames and decodes without a socket); outgoing messages use
+// libopenigtlink.
 #include <arpa/inet.h>
 #include <fcntl.h>
 #include <igtlSensorMessage.h>
 #include <igtlStringMessage.h>
 #include <igtlTimeStamp.h>
-#include <igtl_header.h>
-#include <igtl_sensor.h>
-#include <igtl_string.h>
-#include <igtl_util.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <poll.h>
@@ -29,9 +26,11 @@
 #include <deque>
 #include <iostream>
 #include <mutex>
+#include <span>
 #include <sstream>
 #include <thread>
 
+#include "igtl_stream.h"
 #include "json_fields.h"
 #include "vcsim/core.h"
 #include "vcsim/haptics.h"
@@ -45,12 +44,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-constexpr std::size_t kHeaderSize = IGTL_HEADER_SIZE;  // 58 bytes
-// Larger than any message we accept (a SENSOR of 255 values is 2 kB); a well-formed message with
-// a bigger body (an IMAGE a 3D Slicer user sends along) is read past in the receive buffer's
-// chunks, never held whole. A body size beyond kMaxSkip is not a message but garbage.
-constexpr std::uint64_t kMaxBody = 64 * 1024;
-constexpr std::uint64_t kMaxSkip = std::uint64_t{1} << 40;
 // Connections the kernel holds for accept(): a burst of clients is each answered (one adopted,
 // the others refused) instead of some left retrying their SYN.
 constexpr int kListenBacklog = 128;
@@ -66,36 +59,6 @@ std::string num(double v) {
   std::ostringstream os;
   os << v;
   return os.str();
-}
-
-// Big-endian reads (the protocol's byte order) for the version 2 extended header.
-std::uint16_t be16(const unsigned char* p) {
-  return static_cast<std::uint16_t>((p[0] << 8) | p[1]);
-}
-std::uint32_t be32(const unsigned char* p) {
-  return (std::uint32_t{p[0]} << 24) | (std::uint32_t{p[1]} << 16) | (std::uint32_t{p[2]} << 8) |
-         std::uint32_t{p[3]};
-}
-float be_float(const unsigned char* p) {
-  const std::uint32_t u = be32(p);
-  float f;
-  std::memcpy(&f, &u, sizeof f);
-  return f;
-}
-
-// A fixed-size name field: printable ASCII, then NUL padding only.
-bool clean_name(const char* field, std::size_t n, std::string& out) {
-  std::size_t len = 0;
-  while (len < n && field[len] != '\0') {
-    const auto c = static_cast<unsigned char>(field[len]);
-    if (c < 0x20 || c > 0x7e) return false;
-    ++len;
-  }
-  for (std::size_t i = len; i < n; ++i) {
-    if (field[i] != '\0') return false;
-  }
-  out.assign(field, len);
-  return true;
 }
 
 bool valid_instrument_name(const std::string& s) {
@@ -144,7 +107,8 @@ struct IgtlServer::Impl {
   std::atomic<bool> connected{false};
 
   // Server thread only.
-  std::vector<unsigned char> rx;  // bytes received, not yet framed
+  internal::IgtlStream stream;    // bytes received, framed into messages
+  std::vector<double> values;     // a SENSOR's, reused
   std::vector<unsigned char> tx;  // bytes to send (whole messages)
   std::size_t tx_sent = 0;
   std::vector<igtl::SensorMessage::Pointer> out_msgs;  // one per instrument, reused
@@ -153,7 +117,6 @@ struct IgtlServer::Impl {
   Clock::time_point log_window;
   int log_lines = 0;
   int log_suppressed = 0;
-  std::uint64_t skipping = 0;  // bytes of an oversized message's body still to read past
 
   // Per instrument name (under cmd_mu): the last position command's reference for its speed,
   // and whether a speed or spin beyond the drive was reported (once each).
@@ -222,10 +185,9 @@ struct IgtlServer::Impl {
     setsockopt(fd, IPPROTO_TCP, TCP_USER_TIMEOUT, &timeout, sizeof timeout);
     setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one);
     client_fd = fd;
-    rx.clear();
+    stream.reset();
     tx.clear();
     tx_sent = 0;
-    skipping = 0;
     n_connections.fetch_add(1);
     connected = true;
     log(cat("client connected from ", peer));
@@ -235,10 +197,9 @@ struct IgtlServer::Impl {
     if (client_fd < 0) return;
     ::close(client_fd);
     client_fd = -1;
-    rx.clear();
+    stream.reset();
     tx.clear();
     tx_sent = 0;
-    skipping = 0;
     n_disconnections.fetch_add(1);
     connected = false;
     log(cat("client disconnected (", why, ")"));
@@ -282,14 +243,10 @@ struct IgtlServer::Impl {
     for (int rounds = 0; rounds < 64; ++rounds) {  // bounded: keep feedback on time
       const ssize_t n = ::recv(client_fd, buf, sizeof buf, 0);
       if (n > 0) {
-        // An oversized body is read past here, chunk by chunk, not kept.
-        std::size_t k = 0;
-        if (skipping > 0 && rx.empty()) {
-          k = static_cast<std::size_t>(std::min<std::uint64_t>(skipping, std::uint64_t(n)));
-          skipping -= k;
-        }
-        rx.insert(rx.end(), buf + k, buf + n);
-        if (!frame_messages()) return;
+        const bool framed = stream.feed({buf, static_cast<std::size_t>(n)},
+                                        [this](const internal::IgtlFrame& f) { on_frame(f); });
+        // After a bad header there is no way to find the next message boundary.
+        if (!framed) return disconnect("garbage on the stream");
         continue;
       }
       if (n == 0) {
@@ -301,91 +258,41 @@ struct IgtlServer::Impl {
     }
   }
 
-  // Splits rx into messages. Returns false when the stream could not be framed (connection
-  // dropped: after a bad header there is no way to find the next message boundary).
-  bool frame_messages() {
-    std::size_t off = 0;
-    for (;;) {
-      if (skipping > 0) {
-        const std::size_t k =
-            static_cast<std::size_t>(std::min<std::uint64_t>(skipping, rx.size() - off));
-        off += k;
-        skipping -= k;
-        if (skipping > 0) break;
-      }
-      if (rx.size() - off < kHeaderSize) break;
-      igtl_header h;
-      std::memcpy(&h, rx.data() + off, kHeaderSize);
-      igtl_header_convert_byte_order(&h);
-      std::string type, device;
-      const bool names_ok = clean_name(h.name, IGTL_HEADER_TYPE_SIZE, type) &&
-                            clean_name(h.device_name, IGTL_HEADER_NAME_SIZE, device);
-      if ((h.version != 1 && h.version != 2) || !names_ok || type.empty() ||
-          h.body_size > kMaxSkip) {
+  void on_frame(const internal::IgtlFrame& f) {
+    using Kind = internal::IgtlFrame::Kind;
+    switch (f.kind) {
+      case Kind::kGarbage:
         n_dropped.fetch_add(1);
-        log(cat("unreadable header (version ", std::to_string(h.version), ", body ",
-                std::to_string(h.body_size), " bytes): dropping the connection"));
-        disconnect("garbage on the stream");
-        return false;
-      }
-      if (h.body_size > kMaxBody) {
+        log(cat(f.error, ": dropping the connection"));
+        return;
+      case Kind::kSkipped:
         // Well-formed but more than we read (an IMAGE): skipped, the connection kept.
         n_dropped.fetch_add(1);
         n_skipped.fetch_add(1);
-        log(cat("skipped ", type, " message '", device, "' of ", std::to_string(h.body_size),
-                " bytes (messages over ", std::to_string(kMaxBody), " bytes are not read)"));
-        skipping = h.body_size;
-        off += kHeaderSize;
-        continue;
-      }
-      const std::size_t body = static_cast<std::size_t>(h.body_size);
-      if (rx.size() - off < kHeaderSize + body) break;  // wait for the rest
-      handle(h, type, device, rx.data() + off + kHeaderSize, body);
-      off += kHeaderSize + body;
+        log(cat("skipped ", f.type, " message '", f.device, "' of ", std::to_string(f.body_size),
+                " bytes (messages over ", std::to_string(internal::kIgtlMaxBody),
+                " bytes are not read)"));
+        return;
+      case Kind::kBadMessage:
+        return drop(f.device, f.error);
+      case Kind::kMessage:
+        break;
     }
-    rx.erase(rx.begin(), rx.begin() + static_cast<std::ptrdiff_t>(off));
-    return true;
-  }
-
-  void handle(const igtl_header& h, const std::string& type, const std::string& device,
-              const unsigned char* body, std::size_t size) {
-    // The CRC covers the whole body (extended header and metadata included).
-    if (crc64(const_cast<unsigned char*>(body), size, 0) != h.crc) {
-      return drop(device, "CRC mismatch");
-    }
-    // Header version 2 (OpenIGTLink 3): extended header, content, metadata header, metadata.
-    const unsigned char* content = body;
-    std::size_t csize = size;
-    if (h.version == 2) {
-      if (size < 12) return drop(device, "version 2 body shorter than its extended header");
-      const std::size_t ext = be16(body), meta_head = be16(body + 2), meta = be32(body + 4);
-      if (ext < 12 || ext + meta_head + meta > size) {
-        return drop(device, "inconsistent version 2 extended header");
-      }
-      content = body + ext;
-      csize = size - ext - meta_head - meta;
-    }
-    if (type == "SENSOR") return handle_sensor(device, content, csize);
-    if (type == "TRANSFORM") return handle_transform(device, content, csize);
-    if (type == "STRING") return handle_string(device, content, csize);
-    drop(device, cat("unsupported message type ", type, " (expected SENSOR, TRANSFORM or STRING)"));
+    if (f.type == "SENSOR") return handle_sensor(f.device, f.content);
+    if (f.type == "TRANSFORM") return handle_transform(f.device, f.content);
+    if (f.type == "STRING") return handle_string(f.device, f.content);
+    drop(f.device,
+         cat("unsupported message type ", f.type, " (expected SENSOR, TRANSFORM or STRING)"));
   }
 
   // STRING "exchange": a change of the scene's instruments, queued for the physics thread, which
   // applies or refuses it (exchanged, exchange_refused) before its next step. A request that
   // does not parse is dropped and answered at once.
-  void handle_string(const std::string& device, const unsigned char* content, std::size_t size) {
+  void handle_string(const std::string& device, std::span<const unsigned char> content) {
     if (device != "exchange") return drop(device, "expected STRING on device exchange only");
-    if (size < IGTL_STRING_HEADER_SIZE) return drop(device, "STRING body too short");
-    igtl_string_header sh;
-    std::memcpy(&sh, content, IGTL_STRING_HEADER_SIZE);
-    igtl_string_convert_byte_order(&sh);
-    if (size != std::size_t{IGTL_STRING_HEADER_SIZE} + sh.length)
-      return drop(device, "STRING body size does not match its length");
-    std::string text(reinterpret_cast<const char*>(content) + IGTL_STRING_HEADER_SIZE, sh.length);
-    for (char c : text)
-      if (static_cast<unsigned char>(c) < 0x20 || static_cast<unsigned char>(c) > 0x7e)
-        return drop(device, "expected printable ASCII");
+    std::string text;
+    if (std::string why = internal::decode_igtl_string(content, text); !why.empty())
+      return drop(device, why);
     InstrumentChange change;
     std::string why = parse_exchange_request(text, change);
     if (why.empty() && change.kind == InstrumentChange::Kind::kAdd &&
@@ -407,20 +314,11 @@ struct IgtlServer::Impl {
     exchanges.push_back(std::move(change));
   }
 
-  void handle_sensor(const std::string& device, const unsigned char* content, std::size_t size) {
-    if (size < IGTL_SENSOR_HEADER_SIZE) return drop(device, "SENSOR body too short");
-    igtl_sensor_header sh;
-    std::memcpy(&sh, content, IGTL_SENSOR_HEADER_SIZE);
-    const std::size_t n = sh.larray;
-    if (size != IGTL_SENSOR_HEADER_SIZE + 8 * n) {
-      return drop(device, "SENSOR body size does not match its array length");
-    }
-    double v[255];
-    std::memcpy(v, content + IGTL_SENSOR_HEADER_SIZE, 8 * n);
-    igtl_sensor_convert_byte_order(&sh, v);
-    for (std::size_t i = 0; i < n; ++i) {
-      if (!std::isfinite(v[i])) return drop(device, "non-finite value");
-    }
+  void handle_sensor(const std::string& device, std::span<const unsigned char> content) {
+    if (std::string why = internal::decode_igtl_sensor(content, values); !why.empty())
+      return drop(device, why);
+    const std::size_t n = values.size();
+    const double* v = values.data();
     const CommandLimits& lim = opt.limits;
     auto want = [&](std::size_t k) {
       if (n == k) return true;
@@ -464,21 +362,11 @@ struct IgtlServer::Impl {
 
   // TRANSFORM: the pose of the instrument's hub in the device frame, whose z axis is the
   // insertion axis. Depth = the translation's z component; angle = rotation about z.
-  void handle_transform(const std::string& device, const unsigned char* content, std::size_t size) {
-    if (size != 48) return drop(device, "TRANSFORM body is not 12 floats");
-    // Columns of the upper 3x4 matrix: R(:,0), R(:,1), R(:,2), t (big-endian float32).
-    double m[12];
-    for (int i = 0; i < 12; ++i) {
-      m[i] = static_cast<double>(be_float(content + 4 * i));
-      if (!std::isfinite(m[i])) return drop(device, "non-finite value");
-    }
-    for (int c = 0; c < 3; ++c) {
-      const double len = std::sqrt(m[3 * c] * m[3 * c] + m[3 * c + 1] * m[3 * c + 1] +
-                                   m[3 * c + 2] * m[3 * c + 2]);
-      if (std::abs(len - 1.0) > 0.05) return drop(device, "rotation part is not a rotation");
-    }
-    const double depth_mm = m[11];
-    const double angle_deg = std::atan2(m[1], m[0]) * 180.0 / kPi;
+  void handle_transform(const std::string& device, std::span<const unsigned char> content) {
+    double depth_mm = 0.0, angle_deg = 0.0;
+    if (std::string why = internal::decode_igtl_transform(content, depth_mm, angle_deg);
+        !why.empty())
+      return drop(device, why);
     set_instrument(device, device, InstrumentCommand::Mode::kPosition, depth_mm, angle_deg, true);
   }
 
