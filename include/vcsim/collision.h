@@ -56,7 +56,8 @@ struct MeshReport {
 //  1. indices in range and coordinates finite (else InputError);
 //  2. degenerate triangles (repeated index, zero area) and duplicates (same three vertices)
 //     removed, unused vertices dropped;
-//  3. non-manifold edges (shared by more than two triangles): InputError;
+//  3. non-manifold edges (shared by more than two triangles): InputError naming
+//     `vcsim anatomy repair` (repair_mesh);
 //  4. orientation made consistent by flood fill across shared edges; a non-orientable
 //     component (Moebius-like) is refused with InputError;
 //  5. each component oriented so that its normals face the lumen: the signed volume of the
@@ -65,6 +66,37 @@ struct MeshReport {
 // Open boundary loops are expected at vessel ends and only reported. `source` (a file path or
 // a description) names the mesh in error messages.
 MeshReport check_and_repair(TriangleMesh& mesh, const std::string& source = "mesh");
+
+// What repair_mesh changed.
+struct MeshRepairReport {
+  int non_manifold_edges = 0;           // edges shared by more than two triangles, as found
+  int non_manifold_dropped = 0;         // triangles dropped so that each edge has at most two
+  int degenerate_removed = 0;           // zero-area or repeated-index triangles dropped
+  int duplicates_removed = 0;           // triangles on the same three vertices as an earlier one
+  int components_dropped = 0;           // small disconnected pieces dropped
+  int component_triangles_dropped = 0;  // their triangles
+  int unused_vertices_removed = 0;
+  int triangles_before = 0, triangles_after = 0;
+
+  // One line per change, for the CLI.
+  std::string summary() const;
+};
+
+struct MeshRepairSettings {
+  // A component (edge-connected) with fewer triangles than this fraction of the largest one is
+  // dropped (loose fins, specks left by segmentation).
+  double min_component_fraction = 0.01;
+};
+
+// Makes a mesh with small defects one that check_and_repair accepts: degenerate and duplicate
+// triangles removed; on each edge shared by more than two triangles, the two that best continue
+// the surface kept (opposite windings along the edge first, then the most triangles whose other
+// edges are manifold, then the flattest dihedral) and the others dropped, repeated until every
+// edge has at most two; components below settings.min_component_fraction of the largest
+// dropped; unused vertices removed. Throws InputError (naming `source`) for indices out of range,
+// non-finite coordinates or nothing left. Does not orient: run check_and_repair after it.
+MeshRepairReport repair_mesh(TriangleMesh& mesh, const std::string& source = "mesh",
+                             const MeshRepairSettings& settings = {});
 
 // ---------------------------------------------------------------------------------------------
 // Geometry kernels

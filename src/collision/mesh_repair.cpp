@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdint>
 #include <deque>
+#include <numbers>
 #include <sstream>
 
 namespace vcsim {
@@ -173,7 +174,8 @@ MeshReport check_and_repair(TriangleMesh& m, const std::string& source) {
                      "a manifold surface (each edge shared by at most two triangles); " +
                          std::to_string(non_manifold) + " edge(s) are shared by more, the first " +
                          "between vertices " + std::to_string(u) + " " + str(m.vertices[u]) +
-                         " and " + std::to_string(v) + " " + str(m.vertices[v]));
+                         " and " + std::to_string(v) + " " + str(m.vertices[v]) +
+                         "; run 'vcsim anatomy repair IN OUT' to keep two triangles on each");
   }
 
   // 4. Consistent orientation: flood fill from a seed per component, deciding for each
@@ -305,6 +307,183 @@ MeshReport check_and_repair(TriangleMesh& m, const std::string& source) {
   m.recompute_normals();
   r.vertices = m.num_vertices();
   r.triangles = m.num_triangles();
+  return r;
+}
+
+namespace {
+
+// The sides of the kept triangles, grouped by undirected edge (sorted by key, then triangle).
+std::vector<Side> sorted_sides(const TriangleMesh& m, const std::vector<char>& dropped) {
+  std::vector<Side> sides;
+  sides.reserve(3 * m.triangles.size());
+  for (int t = 0; t < m.num_triangles(); ++t) {
+    if (dropped[t]) continue;
+    for (int k = 0; k < 3; ++k)
+      sides.push_back({edge_key(m.triangles[t][k], m.triangles[t][(k + 1) % 3]), t, k});
+  }
+  std::sort(sides.begin(), sides.end(), [](const Side& a, const Side& b) {
+    return a.key != b.key ? a.key < b.key : a.tri < b.tri;
+  });
+  return sides;
+}
+
+// How many sides each undirected edge has, looked up by key in the sorted sides.
+int sides_on(const std::vector<Side>& sides, std::uint64_t key) {
+  const auto lo = std::lower_bound(sides.begin(), sides.end(), key,
+                                   [](const Side& s, std::uint64_t k) { return s.key < k; });
+  auto hi = lo;
+  while (hi != sides.end() && hi->key == key) ++hi;
+  return static_cast<int>(hi - lo);
+}
+
+// Angle of triangle t's third vertex about the edge (u -> v), in [0, 2 pi): where its sheet
+// leaves the edge.
+double sheet_angle(const TriangleMesh& m, int t, int slot, const Vec3& axis, const Vec3& e1) {
+  const Vec3& a = m.vertices[m.triangles[t][slot]];
+  const Vec3& w = m.vertices[m.triangles[t][(slot + 2) % 3]];
+  Vec3 d = w - a;
+  d -= axis * axis.dot(d);
+  const double ang = std::atan2(axis.cross(e1).dot(d), e1.dot(d));
+  return ang < 0 ? ang + 2.0 * std::numbers::pi : ang;
+}
+
+}  // namespace
+
+std::string MeshRepairReport::summary() const {
+  std::ostringstream os;
+  os << triangles_before << " triangles in, " << triangles_after << " out\n";
+  os << non_manifold_edges << " non-manifold edge(s); " << non_manifold_dropped
+     << " triangle(s) dropped so that each edge has at most two\n";
+  if (degenerate_removed) os << degenerate_removed << " degenerate triangle(s) removed\n";
+  if (duplicates_removed) os << duplicates_removed << " duplicate triangle(s) removed\n";
+  if (components_dropped)
+    os << components_dropped << " small component(s) dropped (" << component_triangles_dropped
+       << " triangles)\n";
+  if (unused_vertices_removed) os << unused_vertices_removed << " unused vertices removed\n";
+  return os.str();
+}
+
+MeshRepairReport repair_mesh(TriangleMesh& m, const std::string& source,
+                             const MeshRepairSettings& settings) {
+  MeshRepairReport r;
+  r.triangles_before = m.num_triangles();
+  const int nv = m.num_vertices();
+  for (int v = 0; v < nv; ++v) {
+    if (!m.vertices[v].allFinite())
+      throw InputError(source, "vertex " + std::to_string(v),
+                       "finite coordinates, got " + str(m.vertices[v]));
+  }
+  for (int t = 0; t < m.num_triangles(); ++t) {
+    for (int v : m.triangles[t]) {
+      if (v < 0 || v >= nv)
+        throw InputError(
+            source, "triangle " + std::to_string(t),
+            "vertex indices in [0, " + std::to_string(nv) + "), got " + std::to_string(v));
+    }
+  }
+  r.degenerate_removed = remove_degenerate(m);
+  r.duplicates_removed = remove_duplicates(m);
+
+  // Non-manifold edges. Dropping a triangle changes the counts on its other edges, so each pass
+  // decides every crowded edge against the sides as they were, then passes repeat (a few).
+  std::vector<char> dropped(m.triangles.size(), 0);
+  for (int pass = 0; pass < 16; ++pass) {
+    const std::vector<Side> sides = sorted_sides(m, dropped);
+    bool any = false;
+    for (std::size_t i = 0; i < sides.size();) {
+      std::size_t j = i + 1;
+      while (j < sides.size() && sides[j].key == sides[i].key) ++j;
+      if (j - i <= 2) {
+        i = j;
+        continue;
+      }
+      if (pass == 0) ++r.non_manifold_edges;
+      // The edge's frame: axis along it, e1 where the first sheet leaves it.
+      const int u = static_cast<int>(sides[i].key >> 32);
+      const int v = static_cast<int>(sides[i].key & 0xffffffffu);
+      const Vec3 axis = (m.vertices[v] - m.vertices[u]).normalized();
+      Vec3 e1 = m.vertices[m.triangles[sides[i].tri][(sides[i].slot + 2) % 3]] - m.vertices[u];
+      e1 = (e1 - axis * axis.dot(e1)).normalized();
+      // Per side: runs u -> v, how many of its other edges are manifold, its sheet's angle.
+      struct Cand {
+        int tri;
+        bool forward;
+        int embedded;
+        double angle;
+      };
+      std::vector<Cand> cand;
+      for (std::size_t s = i; s < j; ++s) {
+        if (dropped[sides[s].tri]) continue;  // by another edge of this pass
+        const auto& t = m.triangles[sides[s].tri];
+        const int k = sides[s].slot;
+        int embedded = 0;
+        for (int o = 1; o < 3; ++o)
+          if (sides_on(sides, edge_key(t[(k + o) % 3], t[(k + o + 1) % 3])) == 2) ++embedded;
+        cand.push_back(
+            {sides[s].tri, t[k] == u, embedded, sheet_angle(m, sides[s].tri, k, axis, e1)});
+      }
+      const std::size_t n = cand.size();
+      if (n <= 2) {
+        i = j;
+        continue;
+      }
+      any = true;
+      // The best pair: opposite windings (a consistently oriented surface), then the most
+      // embedded, then the dihedral nearest a flat continuation (pi between the two sheets).
+      double best = -1e300;
+      std::size_t ba = 0, bb = 1;
+      for (std::size_t a = 0; a < n; ++a) {
+        for (std::size_t b = a + 1; b < n; ++b) {
+          const double gap = std::abs(cand[a].angle - cand[b].angle);
+          const double dihedral = std::min(gap, 2.0 * std::numbers::pi - gap);
+          const double score = 100.0 * (cand[a].forward != cand[b].forward) +
+                               10.0 * (cand[a].embedded + cand[b].embedded) + dihedral;
+          if (score > best) best = score, ba = a, bb = b;
+        }
+      }
+      for (std::size_t a = 0; a < n; ++a) {
+        if (a == ba || a == bb) continue;
+        dropped[cand[a].tri] = 1;
+        ++r.non_manifold_dropped;
+      }
+      i = j;
+    }
+    if (!any) break;
+  }
+
+  // Small components: edge-connected over the kept triangles (union-find over shared edges).
+  {
+    const std::vector<Side> sides = sorted_sides(m, dropped);
+    std::vector<int> parent(m.triangles.size());
+    for (std::size_t t = 0; t < parent.size(); ++t) parent[t] = static_cast<int>(t);
+    auto find = [&](int x) {
+      while (parent[x] != x) x = parent[x] = parent[parent[x]];
+      return x;
+    };
+    for (std::size_t s = 1; s < sides.size(); ++s)
+      if (sides[s].key == sides[s - 1].key) parent[find(sides[s].tri)] = find(sides[s - 1].tri);
+    std::vector<int> size(m.triangles.size(), 0);
+    for (int t = 0; t < m.num_triangles(); ++t)
+      if (!dropped[t]) ++size[find(t)];
+    const int largest = *std::max_element(size.begin(), size.end());
+    const double keep = settings.min_component_fraction * largest;
+    for (int t = 0; t < m.num_triangles(); ++t) {
+      if (dropped[t] || size[find(t)] >= keep) continue;
+      if (find(t) == t) ++r.components_dropped;
+      dropped[t] = 1;
+      ++r.component_triangles_dropped;
+    }
+  }
+
+  std::size_t next = 0;
+  for (std::size_t t = 0; t < m.triangles.size(); ++t)
+    if (!dropped[t]) m.triangles[next++] = m.triangles[t];
+  m.triangles.resize(next);
+  if (m.triangles.empty())
+    throw InputError(source, "triangles", "at least one triangle left after repair");
+  r.unused_vertices_removed = remove_unused_vertices(m);
+  m.recompute_normals();
+  r.triangles_after = m.num_triangles();
   return r;
 }
 

@@ -179,5 +179,81 @@ TEST(MeshRepair, BadInputIsRefused) {
   EXPECT_TRUE(throws_input_error_with([&] { check_and_repair(empty, "src"); }, "at least one"));
 }
 
+// A closed unit cube (12 triangles, outward winding) of side a.
+TriangleMesh cube(double a) {
+  TriangleMesh m;
+  for (int i = 0; i < 8; ++i) m.vertices.push_back(a * Vec3(i & 1, (i >> 1) & 1, (i >> 2) & 1));
+  m.triangles = {{0, 2, 1}, {1, 2, 3}, {4, 5, 6}, {5, 7, 6}, {0, 1, 4}, {1, 5, 4},
+                 {2, 6, 3}, {3, 6, 7}, {0, 4, 2}, {2, 4, 6}, {1, 3, 5}, {3, 7, 5}};
+  m.recompute_normals();
+  return m;
+}
+
+TEST(MeshRepair, FinOnAnEdgeIsRefusedNamingTheRepairAndRepairKeepsTheClosedSurface) {
+  const double a = 10e-3;
+  TriangleMesh m = cube(a);
+  // A fin on the edge 0-1 sticking out below the cube at 45 degrees: three triangles on it.
+  m.vertices.push_back(Vec3(0.5 * a, -0.5 * a, -0.5 * a));
+  m.triangles.push_back({0, 1, 8});
+  TriangleMesh refused = m;
+  EXPECT_TRUE(throws_input_error_with([&] { check_and_repair(refused, "fin.stl"); },
+                                      "run 'vcsim anatomy repair IN OUT'"));
+  const MeshRepairReport rr = repair_mesh(m, "fin.stl");
+  EXPECT_EQ(rr.non_manifold_edges, 1);
+  EXPECT_EQ(rr.non_manifold_dropped, 1);
+  EXPECT_EQ(rr.triangles_before, 13);
+  EXPECT_EQ(rr.triangles_after, 12);
+  EXPECT_EQ(rr.unused_vertices_removed, 1);
+  EXPECT_FALSE(rr.summary().empty());
+  const MeshReport r = check_and_repair(m, "fin.stl");
+  // The cube is what is left: closed, one component, its volume.
+  EXPECT_EQ(r.triangles, 12);
+  EXPECT_EQ(r.vertices, 8);
+  EXPECT_EQ(r.boundary_edges, 0);
+  EXPECT_EQ(r.components, 1);
+  ASSERT_EQ(r.component_volumes.size(), 1u);
+  EXPECT_NEAR(r.component_volumes[0], a * a * a, 1e-12 * a * a * a);
+}
+
+TEST(MeshRepair, FinInsideTheSurfaceOnTwoEdgesIsDroppedAndSpeckAndDegenerateGo) {
+  const double a = 10e-3;
+  TriangleMesh m = cube(a);
+  // A fin inside the cube on two crowded edges: 1-2 (the bottom face's diagonal) and 2-6 (a
+  // cube edge); its third edge 6-1 is open.
+  m.triangles.push_back({1, 2, 6});
+  // A speck far away, a degenerate triangle and a duplicate.
+  const int s0 = m.num_vertices();
+  m.vertices.push_back(Vec3(5 * a, 0, 0));
+  m.vertices.push_back(Vec3(5 * a + 1e-4, 0, 0));
+  m.vertices.push_back(Vec3(5 * a, 1e-4, 0));
+  m.triangles.push_back({s0, s0 + 1, s0 + 2});
+  m.triangles.push_back({0, 1, 1});
+  m.triangles.push_back({4, 5, 6});
+  TriangleMesh refused = m;
+  EXPECT_THROW(check_and_repair(refused), InputError);
+  MeshRepairSettings settings;
+  settings.min_component_fraction = 0.2;  // the speck is 1 triangle, the cube 12
+  const MeshRepairReport rr = repair_mesh(m, "mesh", settings);
+  EXPECT_EQ(rr.non_manifold_edges, 2);
+  EXPECT_EQ(rr.non_manifold_dropped, 1);
+  EXPECT_EQ(rr.degenerate_removed, 1);
+  EXPECT_EQ(rr.duplicates_removed, 1);
+  EXPECT_EQ(rr.components_dropped, 1);
+  EXPECT_EQ(rr.component_triangles_dropped, 1);
+  const MeshReport r = check_and_repair(m);
+  EXPECT_EQ(r.triangles, 12);
+  EXPECT_EQ(r.boundary_edges, 0);
+  EXPECT_NEAR(r.component_volumes.at(0), a * a * a, 1e-12 * a * a * a);
+}
+
+TEST(MeshRepair, ManifoldMeshIsLeftAsItIs) {
+  TriangleMesh m = straight_tube(2e-3, 20e-3, 16, 10);
+  const TriangleMesh before = m;
+  const MeshRepairReport rr = repair_mesh(m);
+  EXPECT_EQ(rr.non_manifold_edges + rr.non_manifold_dropped + rr.components_dropped, 0);
+  EXPECT_EQ(m.triangles, before.triangles);
+  EXPECT_EQ(m.vertices, before.vertices);
+}
+
 }  // namespace
 }  // namespace vcsim
