@@ -1,5 +1,5 @@
-// `vcsim anatomy build | info | export` and `vcsim bench anatomy`: the patient's vessel tree and
-// lumen mesh, and the per-step cost of cardiac motion.
+// `vcsim anatomy build | info | export | repair` and `vcsim bench anatomy`: the patient's vessel
+// tree and lumen mesh, and the per-step cost of cardiac motion.
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -364,6 +364,32 @@ int cmd_centrelines(const CentrelineOptions& o) {
   return 0;
 }
 
+// `vcsim anatomy repair IN OUT`: a mesh with small defects (non-manifold edges, degenerate or
+// duplicate triangles, loose pieces) made one the engine accepts, in the input's unit.
+int cmd_repair(const std::string& in, const std::string& out, double min_component) {
+  const std::string ext = lower_ext(out);
+  if (ext != ".stl" && ext != ".obj" && ext != ".ply")
+    throw InputError("anatomy repair", "OUT", "expected a .stl, .obj or .ply path, got " + out);
+  if (!(min_component >= 0.0 && min_component < 1.0))
+    throw InputError("anatomy repair", "--min-component", "expected a fraction in [0, 1)");
+  MeshLoadOptions mo;
+  mo.check = false;
+  TriangleMesh mesh = load_mesh(in, mo);
+  MeshRepairSettings settings;
+  settings.min_component_fraction = min_component;
+  const MeshRepairReport rr = repair_mesh(mesh, in, settings);
+  const MeshReport cr = check_and_repair(mesh, in);  // the engine's own check, as on load
+  std::cout << "repaired " << in << ":\n" << rr.summary() << "then:\n" << cr.summary();
+  if (ext == ".stl")
+    write_stl(mesh, out, true);
+  else if (ext == ".obj")
+    write_obj(mesh, out);
+  else
+    write_ply(mesh, out);
+  std::cout << "wrote " << out << " (" << mesh.num_triangles() << " triangles, the input's unit)\n";
+  return 0;
+}
+
 void install(CLI::App& app, int& status) {
   auto* an = app.add_subcommand("anatomy", "Patient anatomy: vessel tree and lumen mesh");
   an->require_subcommand(1);
@@ -410,6 +436,17 @@ void install(CLI::App& app, int& status) {
   ce->add_option("--compare", co->compare,
                  "A tree JSON to compare with (median and 95th percentile distance)");
   ce->callback([co, &status] { status = cmd_centrelines(*co); });
+
+  auto rp_in = std::make_shared<std::string>();
+  auto rp_out = std::make_shared<std::string>();
+  auto rp_min = std::make_shared<double>(MeshRepairSettings{}.min_component_fraction);
+  auto* rp = an->add_subcommand(
+      "repair", "Repair a mesh with small defects (non-manifold edges, loose pieces) for import");
+  rp->add_option("in", *rp_in, "Mesh to repair (.stl, .obj, .ply)")->required();
+  rp->add_option("out", *rp_out, "Repaired mesh (.stl, .obj or .ply, same unit)")->required();
+  rp->add_option("--min-component", *rp_min,
+                 "Drop pieces with fewer triangles than this fraction of the largest (0.01)");
+  rp->callback([rp_in, rp_out, rp_min, &status] { status = cmd_repair(*rp_in, *rp_out, *rp_min); });
 
   auto bo = std::make_shared<BenchOptions>();
   auto* b = bench_group(app).add_subcommand(

@@ -11,6 +11,9 @@ namespace vcsim {
 
 struct MeshLoadOptions {
   double unit_scale = 1.0;  // metres per file unit, e.g. 1e-3 for files in millimetres
+  // false: the mesh as read (vertices joined, indices and coordinates checked) without
+  // check_and_repair, for a caller that repairs it first (repair_mesh, `vcsim anatomy repair`).
+  bool check = true;
 };
 
 // Loads a triangle mesh (format from the extension: .stl, .obj, .ply, any case), scales it to
@@ -37,5 +40,7 @@ inline constexpr std::uint64_t kMaxMeshVertices = 3 * kMaxMeshTriangles;
 void write_stl(const TriangleMesh& mesh, const std::string& path, bool binary = true,
                double unit_scale = 1.0);
 void write_obj(const TriangleMesh& mesh, const std::string& path, double unit_scale = 1.0);
+// ASCII PLY (vertex x y z as double, faces as vertex_indices lists).
+void write_ply(const TriangleMesh& mesh, const std::string& path, double unit_scale = 1.0);
 
 }  // namespace vcsim

@@ -627,6 +627,7 @@ TriangleMesh load_mesh_bytes(std::span<const char> bytes, const std::string& ext
   if (mesh.triangles.empty())
     throw InputError(path, "triangles", "at least one triangle in the ." + ext + " file");
 
+  if (!options.check) return mesh;
   MeshReport r = check_and_repair(mesh, path);
   if (report != nullptr) *report = std::move(r);
   return mesh;
@@ -690,6 +691,24 @@ void write_obj(const TriangleMesh& mesh, const std::string& path, double unit_sc
   }
   for (const auto& t : mesh.triangles)
     out << "f " << t[0] + 1 << " " << t[1] + 1 << " " << t[2] + 1 << "\n";
+  check_written(out, path);
+}
+
+void write_ply(const TriangleMesh& mesh, const std::string& path, double unit_scale) {
+  require_positive(unit_scale, path, "unit_scale");
+  const double s = 1.0 / unit_scale;
+  std::ofstream out(path);
+  if (!out) throw InputError(path, "file", "a writable path");
+  out << "ply\nformat ascii 1.0\ncomment vcsim lumen mesh; winding faces the lumen\n"
+      << "element vertex " << mesh.vertices.size()
+      << "\nproperty double x\nproperty double y\nproperty double z\n"
+      << "element face " << mesh.triangles.size()
+      << "\nproperty list uchar int vertex_indices\nend_header\n";
+  for (const Vec3& v : mesh.vertices) {
+    const Vec3 p = v * s;
+    out << fmt(p.x()) << " " << fmt(p.y()) << " " << fmt(p.z()) << "\n";
+  }
+  for (const auto& t : mesh.triangles) out << "3 " << t[0] << " " << t[1] << " " << t[2] << "\n";
   check_written(out, path);
 }
 

@@ -86,6 +86,46 @@ TEST(AnatomyCli, BadInputIsOneLineAndExitTwo) {
   std::filesystem::remove(bad);
 }
 
+TEST(AnatomyCli, RepairMakesAMeshWithAFinLoadableAndRefusesBadInput) {
+  // A closed tetrahedron (mm) with a fin on its edge 0-1: refused on load, naming the repair.
+  const auto in = temp("_fin.obj"), out = temp("_fixed.ply"), bad = temp("_bad.stl");
+  {
+    std::ofstream f(in);
+    f << "v 0 0 0\nv 10 0 0\nv 0 10 0\nv 0 0 10\nv 5 -5 -5\n"
+         "f 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\nf 1 2 5\n";
+  }
+  try {
+    vcsim::load_mesh(in.string());
+    ADD_FAILURE() << "a mesh with a fin loaded";
+  } catch (const vcsim::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("vcsim anatomy repair"), std::string::npos) << e.what();
+  }
+  const Result r = run("anatomy repair " + in.string() + " " + out.string());
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.out.find("1 non-manifold edge(s); 1 triangle(s) dropped"), std::string::npos)
+      << r.out;
+  vcsim::MeshReport report;
+  const vcsim::TriangleMesh m = vcsim::load_mesh(out.string(), {}, &report);
+  EXPECT_EQ(m.num_triangles(), 4);
+  EXPECT_EQ(report.boundary_edges, 0);
+  // Bad input: one line naming the file, exit 2.
+  {
+    std::ofstream f(bad);
+    f << "solid x\n  facet normal 0 0 1\n    outer loop\n      vertex 0 0\n";
+  }
+  for (const std::string& args : {"anatomy repair " + bad.string() + " " + out.string(),
+                                  "anatomy repair /nonexistent/x.stl " + out.string(),
+                                  "anatomy repair " + in.string() + " " + temp(".vtk").string()}) {
+    const Result b = run(args);
+    EXPECT_EQ(b.status, 2) << args;
+    EXPECT_EQ(std::count(b.err.begin(), b.err.end(), '\n'), 1) << b.err;
+    EXPECT_EQ(b.err.rfind("vcsim: error: ", 0), 0u) << b.err;
+  }
+  EXPECT_NE(run("anatomy repair " + bad.string() + " " + out.string()).err.find(bad.string()),
+            std::string::npos);
+  for (const auto& p : {in, out, bad}) std::filesystem::remove(p);
+}
+
 TEST(AnatomyCli, BenchJsonHasItsKeys) {
   const Result r = run("bench anatomy --json --steps 200");
   ASSERT_EQ(r.status, 0) << r.err;
