@@ -379,7 +379,11 @@ int cmd_repair(const std::string& in, const std::string& out, double min_compone
   settings.min_component_fraction = min_component;
   const MeshRepairReport rr = repair_mesh(mesh, in, settings);
   const MeshReport cr = check_and_repair(mesh, in);  // the engine's own check, as on load
-  std::cout << "repaired " << in << ":\n" << rr.summary() << "then:\n" << cr.summary();
+  // The mesh is in the file's unit here: MeshReport's volumes, printed in m^3, are in its cube.
+  std::string check = cr.summary();
+  for (std::size_t k; (k = check.find(" m^3")) != std::string::npos;)
+    check.replace(k, 4, " (the file's unit)^3");
+  std::cout << "repaired " << in << ":\n" << rr.summary() << "then:\n" << check;
   if (ext == ".stl")
     write_stl(mesh, out, true);
   else if (ext == ".obj")

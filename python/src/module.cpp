@@ -190,8 +190,9 @@ class PySimulator {
   // The results are the same bit for bit whatever the setting.
   int threads() const { return threads_; }
   void set_threads(int n) {
-    if (n < 0) throw py::value_error("threads: expected 0 (as many as allowed) or more, got " +
-                                     std::to_string(n));
+    if (n < 0)
+      throw py::value_error("threads: expected 0 (as many as allowed) or more, got " +
+                            std::to_string(n));
     if (n == threads_) return;
     threads_ = n;
     arena_ = n > 0 ? std::make_unique<tbb::task_arena>(n) : nullptr;
@@ -516,18 +517,18 @@ CArmPose make_pose(double primary_deg, double secondary_deg, double fov, double 
 // threads with the GIL released: what a vector environment's step does, without a Python
 // thread pool's hand-offs. Every argument is checked before any simulator moves.
 static void step_many(const std::vector<PySimulator*>& sims, const py::list& actions,
-               const std::vector<int>& steps, const std::string& mode) {
+                      const std::vector<int>& steps, const std::string& mode) {
   const std::size_t n = sims.size();
   if (actions.size() != n || steps.size() != n)
     throw py::value_error("step_many: expected as many actions and step counts as simulators (" +
-                          std::to_string(n) + "), got " + std::to_string(actions.size()) +
-                          " and " + std::to_string(steps.size()));
+                          std::to_string(n) + "), got " + std::to_string(actions.size()) + " and " +
+                          std::to_string(steps.size()));
   for (std::size_t i = 0; i < n; ++i) {
     if (sims[i] == nullptr) throw py::value_error("simulators: expected Simulator, got None");
     for (std::size_t j = 0; j < i; ++j)
       if (sims[j] == sims[i])
-        throw py::value_error("simulators: the same Simulator appears twice (" +
-                              std::to_string(j) + " and " + std::to_string(i) + ")");
+        throw py::value_error("simulators: the same Simulator appears twice (" + std::to_string(j) +
+                              " and " + std::to_string(i) + ")");
   }
   for (std::size_t i = 0; i < n; ++i) sims[i]->prepare(actions[i], steps[i], mode, 0.0, 0.0);
   py::gil_scoped_release nogil;

@@ -477,8 +477,8 @@ void BeatingLumen::query_spheres(std::span<const Vec3> centres, std::span<const 
       // The part that never moves keeps its leaves: a sphere that stays within its cache's
       // reach skips the traversal of this, the largest tree.
       if (!caches.empty() && caches[i] != nullptr) {
-        const SphereContact sc = static_.tree.query_sphere(static_.mesh, centres[i], rad, slack,
-                                                           *caches[i], settings);
+        const SphereContact sc =
+            static_.tree.query_sphere(static_.mesh, centres[i], rad, slack, *caches[i], settings);
         if (sc.triangle >= 0) merge.add(sc, static_.global_triangle[sc.triangle]);
       } else {
         consider(static_);
@@ -500,9 +500,8 @@ void BeatingLumen::query_spheres(std::span<const Vec3> centres, std::span<const 
 }
 
 void BeatingLumen::move_and_query(double t, std::span<const Vec3> centres,
-                                  std::span<const double> radii,
-                                  std::span<LeafCache* const> caches, double slack,
-                                  std::span<SphereContact> out) {
+                                  std::span<const double> radii, std::span<LeafCache* const> caches,
+                                  double slack, std::span<SphereContact> out) {
   const double c = motion_.cardiac_waveform(t), r = motion_.respiratory_waveform(t);
   last_time_ = t;
   const PatchGrid* grid = nullptr;
