@@ -273,6 +273,14 @@ struct WallExit {
   double radius = 0.0;          // m
 };
 
+// The openings of a mesh as exits, one per boundary loop (MeshReport::boundary_loops, vertex
+// indices of `mesh`): the disc at the loop's centroid, in the plane of its Newell normal (Newell's
+// method, as in Sutherland, Sproull and Schumacker 1974), turned away from the mesh's triangles
+// next to the loop, reaching the loop's farthest vertex. A loop of fewer than 3 vertices or with
+// no area gives no exit.
+std::vector<WallExit> mesh_exits(const TriangleMesh& mesh,
+                                 const std::vector<std::vector<int>>& loops);
+
 // What instruments collide with: a static lumen (StaticWall) or a moving one (anatomy's
 // BeatingWall). The solver sets the time of each (sub-)step, then asks once per step and
 // instrument for the contacts of spheres (nodes); a moving wall first brings the part of itself

@@ -487,4 +487,54 @@ MeshRepairReport repair_mesh(TriangleMesh& m, const std::string& source,
   return r;
 }
 
+std::vector<WallExit> mesh_exits(const TriangleMesh& mesh,
+                                 const std::vector<std::vector<int>>& loops) {
+  std::vector<WallExit> out;
+  // Which loop each boundary vertex belongs to, and, per loop, the mean of the vertices of the
+  // triangles touching it: a point on the mesh's side of the opening.
+  std::vector<int> loop_of(mesh.vertices.size(), -1);
+  for (std::size_t l = 0; l < loops.size(); ++l)
+    for (int v : loops[l])
+      if (v >= 0 && v < mesh.num_vertices())
+        loop_of[static_cast<std::size_t>(v)] = static_cast<int>(l);
+  std::vector<Vec3> side(loops.size(), Vec3::Zero());
+  std::vector<int> side_count(loops.size(), 0);
+  for (const auto& tri : mesh.triangles) {
+    int l = -1;
+    for (int v : tri)
+      if (loop_of[static_cast<std::size_t>(v)] >= 0) l = loop_of[static_cast<std::size_t>(v)];
+    if (l < 0) continue;
+    for (int v : tri)
+      side[static_cast<std::size_t>(l)] += mesh.vertices[static_cast<std::size_t>(v)];
+    side_count[static_cast<std::size_t>(l)] += 3;
+  }
+  for (std::size_t l = 0; l < loops.size(); ++l) {
+    const std::vector<int>& loop = loops[l];
+    if (loop.size() < 3 || side_count[l] == 0 || std::any_of(loop.begin(), loop.end(), [&](int v) {
+          return v < 0 || v >= mesh.num_vertices();
+        }))
+      continue;
+    Vec3 centre = Vec3::Zero();
+    for (int v : loop) centre += mesh.vertices[static_cast<std::size_t>(v)];
+    centre /= static_cast<double>(loop.size());
+    Vec3 n = Vec3::Zero();
+    for (std::size_t i = 0; i < loop.size(); ++i) {
+      const Vec3 a = mesh.vertices[static_cast<std::size_t>(loop[i])] - centre;
+      const Vec3 b = mesh.vertices[static_cast<std::size_t>(loop[(i + 1) % loop.size()])] - centre;
+      n += a.cross(b);
+    }
+    if (n.norm() <= 0.0) continue;
+    n.normalize();
+    const Vec3 inside = side[l] / static_cast<double>(side_count[l]);
+    if (n.dot(centre - inside) < 0.0) n = -n;
+    double radius = 0.0;
+    for (int v : loop) {
+      const Vec3 d = mesh.vertices[static_cast<std::size_t>(v)] - centre;
+      radius = std::max(radius, (d - d.dot(n) * n).norm());
+    }
+    out.push_back({centre, n, radius});
+  }
+  return out;
+}
+
 }  // namespace vcsim

@@ -36,7 +36,9 @@ double physics_real_time_factor(const Simulator& sim) {
 std::string escape_where(const SimModel& md, int exit) {
   if (exit < 0) return "wall";
   const std::vector<OpenEnd> ends = open_ends(md.tree);
-  if (exit >= static_cast<int>(ends.size())) return "open end " + std::to_string(exit);
+  if (exit >= static_cast<int>(ends.size()))
+    return "opening " + std::to_string(exit - static_cast<int>(ends.size()) + 1) +
+           " of the mesh that no centreline reaches";
   const OpenEnd& e = ends[static_cast<std::size_t>(exit)];
   return "open end of '" + md.tree.segments[static_cast<std::size_t>(e.segment)].name + "' (" +
          (e.at_start ? "start" : "end") + ")";

@@ -57,8 +57,11 @@ class ProcedureWall final : public VesselWall {
   double exits_time_ = -1.0;
 };
 
-// The tree's open ends as the wall's exits, with their motion amplitudes (none without motion).
-void make_exits(const VesselTree& tree, const CardiacMotion* motion, ProcedureWall& wall);
+// The tree's open ends as the wall's exits, with their motion amplitudes (none without motion),
+// in open_ends order; with `mesh_lumen` (a lumen imported from a mesh file) each end is the mesh's
+// own opening nearest it, and the mesh's openings that no end reaches follow.
+void make_exits(const VesselTree& tree, const CardiacMotion* motion, ProcedureWall& wall,
+                const Lumen* mesh_lumen = nullptr);
 
 struct SimScratch {
   // With `reuse` (a workspace of a model with the same anatomy, an exchange apart): its wall

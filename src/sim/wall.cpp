@@ -56,17 +56,50 @@ std::span<const WallExit> ProcedureWall::exits() {
   return exits_;
 }
 
-void make_exits(const VesselTree& tree, const CardiacMotion* motion, ProcedureWall& wall) {
+void make_exits(const VesselTree& tree, const CardiacMotion* motion, ProcedureWall& wall,
+                const Lumen* mesh_lumen) {
   wall.exits_rest.clear();
   wall.exit_amp_c.clear();
   wall.exit_amp_r.clear();
-  for (const OpenEnd& e : open_ends(tree)) {
-    wall.exits_rest.push_back({e.centre, e.outward, e.radius});
+  auto add = [&](const WallExit& e) {
+    wall.exits_rest.push_back(e);
     Vec3 a_c = Vec3::Zero(), a_r = Vec3::Zero();
     if (motion) motion->amplitudes(e.centre, a_c, a_r);
     wall.exit_amp_c.push_back(a_c);
     wall.exit_amp_r.push_back(a_r);
+  };
+  const std::vector<OpenEnd> ends = open_ends(tree);
+  if (!mesh_lumen) {
+    for (const OpenEnd& e : ends) add({e.centre, e.outward, e.radius});
+    return;
   }
+  // A mesh as given has its own openings (boundary loops), and centrelines drawn or computed for
+  // it may end short of them or past them: the openings are the exits. Each tree end takes the
+  // nearest opening facing its way (so an escape there keeps the end's name); an end with none
+  // (the mesh is closed there) gets an exit that never fires (no outward direction); openings no
+  // end took follow.
+  const std::vector<WallExit> openings =
+      mesh_exits(mesh_lumen->mesh, mesh_lumen->report.boundary_loops);
+  std::vector<char> taken(openings.size(), 0);
+  for (const OpenEnd& e : ends) {
+    int best = -1;
+    double best_d = 0.0;
+    for (std::size_t k = 0; k < openings.size(); ++k) {
+      const double d = (openings[k].centre - e.centre).norm();
+      if (taken[k] || openings[k].outward.dot(e.outward) <= 0.0 || (best >= 0 && d >= best_d))
+        continue;
+      best = static_cast<int>(k);
+      best_d = d;
+    }
+    if (best >= 0) {
+      taken[static_cast<std::size_t>(best)] = 1;
+      add(openings[static_cast<std::size_t>(best)]);
+    } else {
+      add({e.centre, Vec3::Zero(), 0.0});
+    }
+  }
+  for (std::size_t k = 0; k < openings.size(); ++k)
+    if (!taken[k]) add(openings[k]);
 }
 
 Vec3 ProcedureWall::velocity(const SphereContact& hit) const {

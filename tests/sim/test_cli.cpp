@@ -3,6 +3,7 @@
 // reached ends the run with a report (status 3), never a hang.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -135,6 +136,60 @@ TEST(RunCli, AnEscapeIsReportedAndCanStopTheRun) {
       EXPECT_NEAR(j["sim_time_s"].get<double>(), 2.1, 1e-3);
     }
   }
+}
+
+// An imported mesh's own openings are its exits (issue 29, part 2): the same tube as a mesh file
+// open at z = 0, with centrelines that start 20 mm inside it. The tree's open start lies 20 mm
+// short of the mesh's opening, where the wire is still inside the tube; the escape is seen where
+// the wire leaves the mesh, 20 mm later, and still named by the tree's end.
+TEST(RunCli, AMeshsOwnOpeningIsItsExit) {
+  const fs::path d = scratch("mesh-exit");
+  {
+    // An open cylinder of radius 2 mm from z = 0 to 200 mm, normals into the lumen.
+    std::ofstream f(d / "tube.stl");
+    f << "solid tube\n";
+    constexpr int kAround = 32, kAlong = 100;
+    auto p = [](int a, int z) {
+      const double phi = 2.0 * 3.141592653589793 * a / kAround;
+      return std::to_string(2.0 * std::cos(phi)) + " " + std::to_string(2.0 * std::sin(phi)) + " " +
+             std::to_string(2.0 * z);
+    };
+    auto tri = [&](const std::string& a, const std::string& b, const std::string& c) {
+      f << "facet normal 0 0 0\nouter loop\nvertex " << a << "\nvertex " << b << "\nvertex " << c
+        << "\nendloop\nendfacet\n";
+    };
+    for (int z = 0; z < kAlong; ++z)
+      for (int a = 0; a < kAround; ++a) {
+        tri(p(a, z), p(a, z + 1), p(a + 1, z));
+        tri(p(a + 1, z), p(a, z + 1), p(a + 1, z + 1));
+      }
+    f << "endsolid tube\n";
+  }
+  write(d / "tube.json", R"({"format": "vcsim-anatomy", "version": 1, "name": "tube",
+    "coordinates": "LPS", "open_start": true, "access": {"segment": "tube", "distance_mm": 170},
+    "segments": [{"name": "tube", "kind": "artery", "parent": null,
+                  "points_mm": [[0, 0, 20], [0, 0, 110], [0, 0, 200]], "radius_mm": 2}]})");
+  write(d / "timeline.json", R"({"keyframes": [
+    {"t_s": 0, "instruments": {"wire": {"translation_mm": 0, "rotation_deg": 0}}},
+    {"t_s": 2.1, "instruments": {"wire": {"translation_mm": 210, "rotation_deg": 0}}}]})");
+  write(d / "s.json", R"({"format": "vcsim-scenario", "version": 1, "name": "mesh-exit",
+    "anatomy": "tube.stl", "centrelines": "tube.json", "mesh_unit_mm": 1,
+    "motion": {"beating": false}, "dt_ms": 0.5, "time_limit_s": 2.1, "sheath_length_mm": 10,
+    "instruments": [{"name": "wire", "catalogue": "wire-014-floppy", "max_nodes": 160,
+                     "tip_segment_mm": 1}],
+    "input": {"type": "timeline", "file": "timeline.json"}})");
+  const fs::path out = d / "out";
+  const CliResult r =
+      run_cli("run " + (d / "s.json").string() + " --no-frames --no-report --out " + out.string());
+  EXPECT_EQ(r.status, 4) << r.out << r.err;
+  const auto j = nlohmann::json::parse(slurp(out / "metrics.json"));
+  const auto& e = j["instruments"][0]["escape"];
+  ASSERT_TRUE(e.is_object()) << j["instruments"][0].dump();
+  EXPECT_EQ(e["where"].get<std::string>(), "open end of 'tube' (start)");
+  // The tip reaches the tree's end (z = 20 mm) at 170 mm inserted, 1.7 s in, and the mesh's
+  // opening (z = 0) at 190 mm, 1.9 s in.
+  EXPECT_GT(e["first_time_s"].get<double>(), 1.88);
+  EXPECT_LT(e["first_time_s"].get<double>(), 1.95);
 }
 
 TEST(RunCli, BadInputExitsWithTwo) {

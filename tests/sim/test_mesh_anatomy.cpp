@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "vcsim/collision.h"
 #include "vcsim/mesh_io.h"
 #include "vcsim/sim.h"
 
@@ -43,6 +44,31 @@ TEST(MeshAnatomy, TheShippedPhantomRunsFromItsMeshAndTheWireStaysInside) {
   EXPECT_TRUE(sim.all_landmarks_reached());
   EXPECT_LT(worst, 0.2e-3);  // never more than 0.2 mm beyond the centreline radius
   EXPECT_EQ(sim.metrics().rollbacks, 0);
+}
+
+// The phantom's exits are its mesh's three openings, each facing the way of the tree's open end
+// nearest it, on the mesh's cut plane and as wide as the vessel there.
+TEST(MeshAnatomy, ThePhantomsOpeningsAreItsExits) {
+  const Scenario sc = load_scenario(find_scenario("phantom", "test", "scenario"));
+  Simulator sim(sc);
+  const std::vector<WallExit> exits =
+      mesh_exits(sim.lumen().mesh, sim.lumen().report.boundary_loops);
+  const std::vector<OpenEnd> ends = open_ends(sim.tree());
+  ASSERT_EQ(exits.size(), 3u);
+  ASSERT_EQ(ends.size(), 3u);
+  for (const OpenEnd& e : ends) {
+    double best = 1e9;
+    const WallExit* near = nullptr;
+    for (const WallExit& x : exits)
+      if ((x.centre - e.centre).norm() < best) {
+        best = (x.centre - e.centre).norm();
+        near = &x;
+      }
+    ASSERT_NE(near, nullptr);
+    EXPECT_LT(best, 2e-3) << sim.tree().segments[static_cast<std::size_t>(e.segment)].name;
+    EXPECT_GT(near->outward.dot(e.outward), 0.95);
+    EXPECT_NEAR(near->radius, e.radius, 0.3 * e.radius);
+  }
 }
 
 // The reproducer of the issue: a tree rooted at an open inlet with the access 2 mm inside it.
