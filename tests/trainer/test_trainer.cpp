@@ -13,6 +13,7 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -23,6 +24,7 @@
 #include "../common/cli_runner.h"
 #include "../common/igtl_client.h"
 #include "controls.h"
+#include "film.h"
 #include "physics.h"
 #include "script.h"
 #include "vcsim/units.h"
@@ -188,6 +190,60 @@ TEST(TrainerPhysics, ARestoredStateStepsOnAsAFreshOne) {
     used.step(c);
     ASSERT_EQ(fresh.state().hash(), used.state().hash()) << "step " << k;
   }
+}
+
+// The session's film without a window: one image a second plus key moments, a rewind drops the
+// frames after it, and the files left are numbered in order as `vcsim run`'s film.
+TEST(TrainerFilm, KeepsOneImageASecondAndKeyMomentsAndGoesBackWithARewind) {
+  const Scratch scratch_dir("film");
+  const fs::path dir = scratch_dir.d / "frames";
+  fs::create_directories(dir);
+  std::ofstream(dir / "frame_00007.png") << "an earlier session's";
+  const int n = 8;
+  auto image = [&](int shade) {
+    return std::vector<std::uint8_t>(static_cast<std::size_t>(n) * n,
+                                     static_cast<std::uint8_t>(shade));
+  };
+  std::vector<double> times;
+  std::vector<Vec3> isos;
+  {
+    trainer::SessionFilm film(dir, n);
+    EXPECT_FALSE(fs::exists(dir / "frame_00007.png"));
+    // Images shown every 0.1 s for 3 s: kept at 0 and 1.0 s (a second apart), at the key moment
+    // 1.4 s, and at 2.4 s (a second after it).
+    for (int k = 0; k <= 30; ++k) {
+      const double t = 0.1 * k;
+      if (film.due(t, k == 14)) film.keep(image(k), t, Vec3(0.001 * k, 0, 0));
+    }
+    EXPECT_EQ(film.kept(), 4);
+    EXPECT_NEAR(film.last_time(), 2.4, 1e-9);
+    film.keep(image(99), 2.4, Vec3::Zero());  // the same state shown again: kept once
+    EXPECT_EQ(film.kept(), 4);
+    film.rewound(1.2);  // the state back at 1.2 s: 1.4 and 2.4 dropped
+    EXPECT_EQ(film.kept(), 2);
+    film.keep(image(200), 1.3, Vec3(0, 0.002, 0));
+    film.finish(times, isos);
+  }
+  ASSERT_EQ(times.size(), 3u);
+  EXPECT_NEAR(times[0], 0.0, 1e-9);
+  EXPECT_NEAR(times[1], 1.0, 1e-9);
+  EXPECT_NEAR(times[2], 1.3, 1e-9);
+  EXPECT_NEAR(isos[1].x(), 0.010, 1e-12);
+  EXPECT_NEAR(isos[2].y(), 0.002, 1e-12);
+  for (std::size_t k = 0; k < times.size(); ++k) {
+    char name[32];
+    std::snprintf(name, sizeof name, "frame_%05zu.png", k);
+    int w = 0, h = 0, c = 0;
+    unsigned char* px = stbi_load((dir / name).string().c_str(), &w, &h, &c, 1);
+    ASSERT_NE(px, nullptr) << name;
+    EXPECT_EQ(w, n);
+    // The second file is the image of 1.0 s (shade 10); the third the one kept after the rewind.
+    EXPECT_EQ(static_cast<int>(px[0]), k == 2 ? 200 : 10 * static_cast<int>(k));
+    stbi_image_free(px);
+  }
+  std::size_t files = 0;
+  for (const auto& e : fs::directory_iterator(dir)) files += e.path().extension() == ".png";
+  EXPECT_EQ(files, times.size());
 }
 
 TEST(TrainerScript, ABadScriptIsAnErrorNamingTheField) {
