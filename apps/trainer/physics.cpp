@@ -124,6 +124,7 @@ void PhysicsThread::publish(bool paused) {
   v.recorded_steps = recording_.steps();
   v.instruments = sim_.instrument_names();
   v.exchanges = exchanges_made_;
+  v.assessment_events = assess_.num_events();
   v.message = message_;
   std::lock_guard lock(m_);
   v.version = view_.version + 1;

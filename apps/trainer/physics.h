@@ -59,6 +59,7 @@ struct ViewState {
   std::vector<std::uint8_t> landmarks;   // (landmark) 1 when reached
   std::vector<std::string> instruments;  // the scene's, in order (an exchange changes them)
   int exchanges = 0;                     // instrument exchanges made in the session
+  int assessment_events = 0;             // Assessment::num_events() (the film's key moments)
   IgtlStats device;
   bool has_device = false;
   std::int64_t recorded_steps = 0;

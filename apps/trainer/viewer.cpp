@@ -84,6 +84,15 @@ Viewer::Viewer(TrainerOptions& o, GLFWwindow* win)
     // The exchange menu is then empty; the session does not need it.
   }
   image_.assign(static_cast<std::size_t>(o.fluoro_size) * o.fluoro_size, 0);
+  if (o.write_outputs) {
+    try {
+      // An earlier session's frames.csv would name frames this one may not film.
+      fs::remove(o.out / "frames.csv");
+      film_ = std::make_unique<SessionFilm>(o.out / "frames", o.fluoro_size);
+    } catch (const std::exception& e) {  // the session runs on; its report has no key frames
+      status_ = std::string("not filming the session: ") + e.what();
+    }
+  }
   if (o.bench) {
     script_ = bench_script(o.bench_time, controls_.num_instruments());
   } else if (!o.script.empty()) {
@@ -221,6 +230,7 @@ void Viewer::do_action(Action a) {
 
 void Viewer::render_xray() {
   const bool fluoro = controls_.fluoro_pedal(), cine = controls_.cine_pedal();
+  drew_ = false;
   xray_now_ = (fluoro || cine) && !view_.paused;
   if (!cine && cine_open_) cine_open_ = false;  // the cine pedal let go: the run is complete
   if (!xray_now_ || view_.version == drawn_version_) return;
@@ -237,6 +247,9 @@ void Viewer::render_xray() {
   tex_.upload(image_);
   render_s_ += (now_us() - t0) * 1e-6;
   have_image_ = true;
+  drew_ = true;
+  shown_time_ = view_.time;
+  shown_isocentre_ = pose.isocentre;
   drawn_version_ = view_.version;
   if (cine) {
     if (!cine_open_) {
@@ -249,6 +262,32 @@ void Viewer::render_xray() {
       ++cine_total_;
       next_cine_ += 1.0 / kCineFps;
     }
+  }
+}
+
+void Viewer::film() {
+  if (!film_) return;
+  film_->rewound(view_.time);  // a rewind or a restart: the film goes back with the state
+  // Key moments (what the report's key frames are picked at, docs/assessment.md): an event the
+  // assessment marked (engaged, lesion crossed, a procedure event), an injection's end (the
+  // angiograms before and after treatment), an inflation's start or end.
+  if (view_.assessment_events != film_events_) film_key_ = true;
+  if (film_flow_ > 0.0 && view_.syringe_flow <= 0.0) film_key_ = true;
+  if ((film_pressure_ > 0.0) != (view_.balloon_pressure > 0.0)) film_key_ = true;
+  film_events_ = view_.assessment_events;
+  film_flow_ = view_.syringe_flow;
+  film_pressure_ = view_.balloon_pressure;
+  if (drew_) {
+    shown_filmed_ = film_->due(shown_time_, film_key_);
+    if (shown_filmed_) film_->keep(image_, shown_time_, shown_isocentre_);
+    film_key_ = false;
+  } else if (!xray_now_) {
+    // The beam is off: the image held on screen (last image hold) is the last one shown, and
+    // what a key moment now shows (unless a rewind has since taken its steps back).
+    if (have_image_ && !shown_filmed_ && shown_time_ <= view_.time)
+      film_->keep(image_, shown_time_, shown_isocentre_);
+    shown_filmed_ = true;
+    film_key_ = false;
   }
 }
 
@@ -439,6 +478,7 @@ void Viewer::frame() {
   }
   follow_scene();
   render_xray();
+  film();
 
   ImGui_ImplOpenGL3_NewFrame();
   ImGui_ImplGlfw_NewFrame();
@@ -549,9 +589,24 @@ void Viewer::finish() {
       report.device_address = o_.device_address;
       report.device_port = o_.device->port();
     }
+    // The film: the image on screen at the end too, then every image on disk, in order.
+    std::vector<double> film_times;
+    std::vector<Vec3> film_isocentres;
+    if (film_) {
+      try {
+        if (have_image_ && !shown_filmed_ && shown_time_ <= view_.time)
+          film_->keep(image_, shown_time_, shown_isocentre_);
+        film_->finish(film_times, film_isocentres);
+      } catch (const std::exception& e) {  // the session is saved; its report has no key frames
+        std::cerr << "trainer: frames not written: " << e.what() << "\n";
+        film_times.clear();
+        film_isocentres.clear();
+      }
+    }
     const fs::path metrics = o_.out / "metrics.json";
     write_run_metrics(metrics, sim, report);
-    physics_.assessment().write(o_.out, sim);  // the session's assessment (docs/assessment.md)
+    // The session's assessment (docs/assessment.md), and frames.csv of the film.
+    physics_.assessment().write(o_.out, sim, film_isocentres, film_times);
     // The trainer's own figures beside the run's (the assessment reads both).
     nlohmann::json j;
     {
@@ -564,6 +619,7 @@ void Viewer::finish() {
     t["recorded_runs"] = rec.num_runs();
     t["cine_runs"] = cine_.size();
     t["cine_frames"] = cine_total_;
+    t["film_frames"] = film_times.size();
     t["rewinds"] = physics_.rewinds();
     t["restarts"] = physics_.restarts();
     t["exchanges"] = physics_.exchanges();

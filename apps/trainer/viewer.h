@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "controls.h"
+#include "film.h"
 #include "physics.h"
 #include "script.h"
 #include "trainer.h"
@@ -108,6 +109,8 @@ class Viewer {
   void do_actions();
   void do_action(Action a);
   void render_xray();
+  // Keeps the images the window shows for the session report's key frames (film.h).
+  void film();
   void draw_ui();
   void draw_fluoro_panel(float x, float y, float side);
   void draw_side_panel(float x, float y, float w, float h);
@@ -138,6 +141,17 @@ class Viewer {
   std::int64_t xray_frames_ = 0;
   double render_s_ = 0.0;
   bool xray_now_ = false;
+  bool drew_ = false;  // render_xray drew a new image in this frame
+  // The session's film (film.h), null without outputs: one image a second while the beam is on,
+  // the image shown at each key moment and the last one before the beam goes off.
+  std::unique_ptr<SessionFilm> film_;
+  bool film_key_ = false;       // a key moment since the last image shown
+  int film_events_ = 0;         // the assessment's events when last looked at
+  double film_flow_ = 0.0;      // the syringe's flow (m^3/s) when last looked at
+  double film_pressure_ = 0.0;  // the balloon pressure (Pa) when last looked at
+  bool shown_filmed_ = true;    // the image on screen is in the film
+  double shown_time_ = 0.0;     // s simulated, of the image on screen
+  Vec3 shown_isocentre_ = Vec3::Zero();
   // Cine: runs recorded while the cine pedal is held, at 15 frames per simulated second.
   std::vector<CineRun> cine_;
   bool cine_open_ = false;

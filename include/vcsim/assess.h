@@ -145,12 +145,18 @@ class Assessment : public RunObserver {
   int force_events(const std::string& instrument) const;  // -1: no such instrument
   double wrong_branch_time(const std::string& instrument) const;
   int exchanges() const;
+  // Events marked so far (the report's timeline: engaged, lesion crossed, procedure events...);
+  // it grows by one with each (a copy taken back by a rewind has fewer).
+  int num_events() const;
 
   // Adds "assessment" to DIR/metrics.json (written before by write_run_metrics), writes
   // DIR/series.csv and, with frames, DIR/frames.csv (frame index, time, the table's pan:
-  // `frame_isocentres`, m, one per frame in order). InputError naming the file when it cannot.
+  // `frame_isocentres`, m, one per frame in order; `frame_times`, s, each frame's simulated
+  // time, or empty: frames at the scenario's fps from 0, as `vcsim run` films). InputError naming
+  // the file when it cannot.
   void write(const std::filesystem::path& dir, const Simulator& sim,
-             std::span<const Vec3> frame_isocentres = {}) const;
+             std::span<const Vec3> frame_isocentres = {},
+             std::span<const double> frame_times = {}) const;
 
  private:
   struct Impl;

@@ -2,6 +2,7 @@
 // branches, exchanges, lesion crossing, guide engagement and the treatment, measured by watching
 // the run from outside its state; written into metrics.json, series.csv and frames.csv.
 #include <algorithm>
+#include <cassert>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -530,6 +531,9 @@ int Assessment::injections() const {
 int Assessment::exchanges() const {
   return p_->exchanges;
 }
+int Assessment::num_events() const {
+  return static_cast<int>(p_->marks.size());
+}
 
 int Assessment::force_events(const std::string& name) const {
   for (const Track& tr : p_->tracks)
@@ -563,7 +567,9 @@ double round_to(double v, double q) {
 }  // namespace
 
 void Assessment::write(const fs::path& dir, const Simulator& sim,
-                       std::span<const Vec3> frame_isocentres) const {
+                       std::span<const Vec3> frame_isocentres,
+                       std::span<const double> frame_times) const {
+  assert(frame_times.empty() || frame_times.size() == frame_isocentres.size());
   const Impl& p = *p_;
   const AssessmentSettings& set = p.set;
   const Scenario& sc = sim.scenario();
@@ -828,7 +834,8 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
     const double frame_dt = 1.0 / sc.fluoro.fps;
     for (std::size_t k = 0; k < frame_isocentres.size(); ++k) {
       const Vec3& c = frame_isocentres[k];
-      std::snprintf(buf, sizeof buf, "%.4f", round_to(static_cast<double>(k) * frame_dt, 1e-4));
+      const double t = k < frame_times.size() ? frame_times[k] : static_cast<double>(k) * frame_dt;
+      std::snprintf(buf, sizeof buf, "%.4f", round_to(t, 1e-4));
       f << k << ',' << buf;
       for (int d = 0; d < 3; ++d) {
         std::snprintf(buf, sizeof buf, ",%.3f", c[d] * 1e3);

@@ -10,19 +10,23 @@
 #include <GLFW/glfw3.h>
 #include <stb_image.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <sstream>
 #include <string>
 #include <thread>
 
 #include "../common/cli_runner.h"
 #include "../common/igtl_client.h"
 #include "controls.h"
+#include "film.h"
 #include "physics.h"
 #include "script.h"
 #include "vcsim/units.h"
@@ -190,6 +194,60 @@ TEST(TrainerPhysics, ARestoredStateStepsOnAsAFreshOne) {
   }
 }
 
+// The session's film without a window: one image a second plus key moments, a rewind drops the
+// frames after it, and the files left are numbered in order as `vcsim run`'s film.
+TEST(TrainerFilm, KeepsOneImageASecondAndKeyMomentsAndGoesBackWithARewind) {
+  const Scratch scratch_dir("film");
+  const fs::path dir = scratch_dir.d / "frames";
+  fs::create_directories(dir);
+  std::ofstream(dir / "frame_00007.png") << "an earlier session's";
+  const int n = 8;
+  auto image = [&](int shade) {
+    return std::vector<std::uint8_t>(static_cast<std::size_t>(n) * n,
+                                     static_cast<std::uint8_t>(shade));
+  };
+  std::vector<double> times;
+  std::vector<Vec3> isos;
+  {
+    trainer::SessionFilm film(dir, n);
+    EXPECT_FALSE(fs::exists(dir / "frame_00007.png"));
+    // Images shown every 0.1 s for 3 s: kept at 0 and 1.0 s (a second apart), at the key moment
+    // 1.4 s, and at 2.4 s (a second after it).
+    for (int k = 0; k <= 30; ++k) {
+      const double t = 0.1 * k;
+      if (film.due(t, k == 14)) film.keep(image(k), t, Vec3(0.001 * k, 0, 0));
+    }
+    EXPECT_EQ(film.kept(), 4);
+    EXPECT_NEAR(film.last_time(), 2.4, 1e-9);
+    film.keep(image(99), 2.4, Vec3::Zero());  // the same state shown again: kept once
+    EXPECT_EQ(film.kept(), 4);
+    film.rewound(1.2);  // the state back at 1.2 s: 1.4 and 2.4 dropped
+    EXPECT_EQ(film.kept(), 2);
+    film.keep(image(200), 1.3, Vec3(0, 0.002, 0));
+    film.finish(times, isos);
+  }
+  ASSERT_EQ(times.size(), 3u);
+  EXPECT_NEAR(times[0], 0.0, 1e-9);
+  EXPECT_NEAR(times[1], 1.0, 1e-9);
+  EXPECT_NEAR(times[2], 1.3, 1e-9);
+  EXPECT_NEAR(isos[1].x(), 0.010, 1e-12);
+  EXPECT_NEAR(isos[2].y(), 0.002, 1e-12);
+  for (std::size_t k = 0; k < times.size(); ++k) {
+    char name[32];
+    std::snprintf(name, sizeof name, "frame_%05zu.png", k);
+    int w = 0, h = 0, c = 0;
+    unsigned char* px = stbi_load((dir / name).string().c_str(), &w, &h, &c, 1);
+    ASSERT_NE(px, nullptr) << name;
+    EXPECT_EQ(w, n);
+    // The second file is the image of 1.0 s (shade 10); the third the one kept after the rewind.
+    EXPECT_EQ(static_cast<int>(px[0]), k == 2 ? 200 : 10 * static_cast<int>(k));
+    stbi_image_free(px);
+  }
+  std::size_t files = 0;
+  for (const auto& e : fs::directory_iterator(dir)) files += e.path().extension() == ".png";
+  EXPECT_EQ(files, times.size());
+}
+
 TEST(TrainerScript, ABadScriptIsAnErrorNamingTheField) {
   EXPECT_EQ(
       trainer::parse_script(R"({"events": [{"t_s": 1, "key": "W", "action": "press"}]})", "s.json")
@@ -252,6 +310,55 @@ std::vector<int> amber_pixels(const Image& im, const nlohmann::json& overlay) {
       if (p[0] > 180 && p[2] < 140 && p[0] > p[2] + 80) px.push_back((y - y0) * 10000 + (x - x0));
     }
   return px;
+}
+
+std::vector<unsigned char> from_base64(const std::string& text) {
+  auto value = [](char c) -> int {
+    if (c >= 'A' && c <= 'Z') return c - 'A';
+    if (c >= 'a' && c <= 'z') return c - 'a' + 26;
+    if (c >= '0' && c <= '9') return c - '0' + 52;
+    if (c == '+') return 62;
+    if (c == '/') return 63;
+    return -1;
+  };
+  std::vector<unsigned char> out;
+  unsigned bits = 0;
+  int have = 0;
+  for (char c : text) {
+    const int v = value(c);
+    if (v < 0) continue;  // '=' padding
+    bits = (bits << 6) | static_cast<unsigned>(v);
+    have += 6;
+    if (have >= 8) {
+      have -= 8;
+      out.push_back(static_cast<unsigned char>((bits >> have) & 0xffu));
+    }
+  }
+  return out;
+}
+
+// The key frames of a session report (report.html's "Key fluoroscopy frames"): the PNGs of its
+// data URIs, decoded to grey pixels.
+std::vector<std::vector<unsigned char>> report_key_frames(const fs::path& page, int& size) {
+  const std::string html = slurp(page);
+  std::vector<std::vector<unsigned char>> frames;
+  const std::size_t section = html.find("id=\"frames-section\"");
+  if (section == std::string::npos) return frames;
+  const std::size_t end = html.find("<h2", section + 1);
+  const std::string key = "src=\"data:image/png;base64,";
+  for (std::size_t at = html.find(key, section); at != std::string::npos && at < end;
+       at = html.find(key, at + 1)) {
+    const std::size_t from = at + key.size(), to = html.find('"', from);
+    const std::vector<unsigned char> png = from_base64(html.substr(from, to - from));
+    int w = 0, h = 0, c = 0;
+    unsigned char* px =
+        stbi_load_from_memory(png.data(), static_cast<int>(png.size()), &w, &h, &c, 1);
+    if (!px) continue;
+    size = w;
+    frames.emplace_back(px, px + static_cast<std::size_t>(w) * h);
+    stbi_image_free(px);
+  }
+  return frames;
 }
 
 std::string replay_hash(const fs::path& dir, const std::string& scenario = "default") {
@@ -335,6 +442,55 @@ TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameSta
   EXPECT_GT(m["assessment"]["contrast"]["volume_ml"].get<double>(), 0.0);
   EXPECT_TRUE(fs::exists(d / "report.html"));
   EXPECT_GT(m["contrast_volume_ml"].get<double>(), 0.0);
+  // The session's film (docs/trainer.md): images shown, one a second of simulated time and at
+  // key moments, as frames/ and frames.csv in the format of `vcsim run`'s film.
+  const int filmed = m["trainer"]["film_frames"].get<int>();
+  EXPECT_GE(filmed, 3);  // the first image shown, a second later, the injection's end, the held
+  const std::string csv = slurp(d / "frames.csv");
+  std::istringstream lines(csv);
+  std::string line;
+  std::getline(lines, line);
+  EXPECT_EQ(line, "frame,time_s,isocentre_x_mm,isocentre_y_mm,isocentre_z_mm");
+  std::vector<double> times;
+  while (std::getline(lines, line)) {
+    int k = -1;
+    double t = 0, x = 0, y = 0, z = 0;
+    ASSERT_EQ(std::sscanf(line.c_str(), "%d,%lf,%lf,%lf,%lf", &k, &t, &x, &y, &z), 5) << line;
+    EXPECT_EQ(k, static_cast<int>(times.size()));
+    if (!times.empty()) {
+      EXPECT_GT(t, times.back());
+    }
+    char name[32];
+    std::snprintf(name, sizeof name, "frame_%05d.png", k);
+    EXPECT_TRUE(fs::exists(d / "frames" / name)) << name;
+    times.push_back(t);
+  }
+  EXPECT_EQ(static_cast<int>(times.size()), filmed);
+  // A key moment: the image shown when the injection ended (the angiograms the report picks).
+  ASSERT_FALSE(m["assessment"]["contrast"]["injections"].empty());
+  const double injected = m["assessment"]["contrast"]["injections"][0]["end_s"].get<double>();
+  EXPECT_TRUE(std::any_of(times.begin(), times.end(),
+                          [&](double t) { return t >= injected - 1e-3 && t <= injected + 0.5; }))
+      << "no frame at the injection's end, " << injected << " s";
+  // The report built from the session's folder shows key frames, and they are not blank.
+  int size = 0;
+  const auto keys = report_key_frames(d / "report.html", size);
+  ASSERT_FALSE(keys.empty()) << "no key frames in the session's report";
+  EXPECT_EQ(size, 512);
+  for (const auto& px : keys) {
+    double key_mean = 0, key_var = 0;
+    bool level[256] = {};
+    for (unsigned char v : px) {
+      key_mean += v / static_cast<double>(px.size());
+      level[v] = true;
+    }
+    for (unsigned char v : px)
+      key_var += (v - key_mean) * (v - key_mean) / static_cast<double>(px.size());
+    EXPECT_GT(key_mean, 15.0);
+    EXPECT_LT(key_mean, 240.0);
+    EXPECT_GT(std::sqrt(key_var), 3.0) << "a flat key frame";
+    EXPECT_GT(std::count(std::begin(level), std::end(level), true), 20);
+  }
   EXPECT_EQ(replay_hash(d), m["state_hash"].get<std::string>());
 }
 
