@@ -442,8 +442,8 @@ class BeatingLumen {
   // moving patches are traversed as above, their leaves move). The caches must be cleared when
   // the lumen is morphed. Results equal the uncached query's exactly.
   void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
-                     std::span<LeafCache* const> caches, double slack,
-                     std::span<SphereContact> out, const SphereQuerySettings& settings = {}) const;
+                     std::span<LeafCache* const> caches, double slack, std::span<SphereContact> out,
+                     const SphereQuerySettings& settings = {}) const;
 
   // The whole wall at the last update of each patch: `out` holds a copy of the rest mesh, whose
   // vertices and normals are overwritten.
