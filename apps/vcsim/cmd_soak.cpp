@@ -42,16 +42,25 @@ Scenario soak_scenario(const std::string& patient) {
   return sc;
 }
 
-nlohmann::json to_json(const SoakReport& r, const std::string& patient) {
+nlohmann::json to_json(const SoakReport& r, const std::string& patient, const SimModel& md) {
   nlohmann::json inst = nlohmann::json::array();
-  for (const auto& i : r.instruments)
+  for (std::size_t k = 0; k < r.instruments.size(); ++k) {
+    const auto& i = r.instruments[k];
+    nlohmann::json escape = nullptr;
+    if (i.escape.steps > 0)
+      escape = {{"steps", i.escape.steps},
+                {"first_time_s", i.escape.time},
+                {"max_distance_mm", i.escape.max_distance * 1e3},
+                {"first", describe_escape(md, static_cast<int>(k), i.escape)}};
     inst.push_back({{"name", i.name},
                     {"checked_steps", i.checked_steps},
                     {"steps_over_1n_off_median", i.departures},
                     {"largest_departure_n", i.largest_departure},
                     {"largest_force_n", i.largest_force},
                     {"deepest_mm", i.deepest * 1e3},
-                    {"withdrawals", i.withdrawals}});
+                    {"withdrawals", i.withdrawals},
+                    {"escape", escape}});
+  }
   return {{"patient", patient},
           {"steps", r.steps},
           {"simulated_s", r.simulated},
@@ -89,7 +98,7 @@ int cmd_soak(const SoakOptions& o) {
                 << std::endl;
     const SoakReport r = soak(sim, s, log.get());
     all = all && r.passed();
-    out.push_back(to_json(r, patient));
+    out.push_back(to_json(r, patient, sim.model()));
     if (!o.quiet) {
       std::cout << std::fixed << std::setprecision(2) << "  " << r.steps << " steps, "
                 << r.simulated << " s in " << r.wall << " s; rollbacks " << r.rollbacks
@@ -102,6 +111,11 @@ int cmd_soak(const SoakOptions& o) {
                   << std::setprecision(2) << i.largest_force << " N, " << i.departures << " of "
                   << i.checked_steps << " steps more than 1 N off their local median (largest "
                   << i.largest_departure << " N)\n";
+      for (std::size_t k = 0; k < r.instruments.size(); ++k)
+        if (r.instruments[k].escape.steps > 0)
+          std::cout << "  ESCAPE: " << r.instruments[k].escape.steps << " steps; first "
+                    << describe_escape(sim.model(), static_cast<int>(k), r.instruments[k].escape)
+                    << "\n";
       std::cout << "  " << (r.passed() ? "passed" : "FAILED") << "\n";
     }
   }

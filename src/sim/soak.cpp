@@ -191,6 +191,9 @@ SoakReport soak(Simulator& sim, const SoakSettings& settings, RunObserver* obser
     const InstrumentState& st = sim.instrument(i);
     for (const Vec3& x : st.rod.x) rep.finite = rep.finite && x.allFinite();
     rep.instruments[static_cast<std::size_t>(i)].name = sim.model().instrument_name(i);
+    if (static_cast<std::size_t>(i) < sim.metrics().escapes.size())
+      rep.instruments[static_cast<std::size_t>(i)].escape =
+          sim.metrics().escapes[static_cast<std::size_t>(i)];
   }
   return rep;
 }

@@ -80,6 +80,9 @@ TEST(Soak, AShortSoakOfTheBeatingPatientIsFiniteWithoutRollback) {
   EXPECT_GT(r.instruments[0].deepest, 0.05);
   EXPECT_GT(r.instruments[0].checked_steps, 1000);
   EXPECT_GT(resident_megabytes(), 1.0);
+  // What the run counted is what the report holds.
+  for (std::size_t i = 0; i < r.instruments.size(); ++i)
+    EXPECT_EQ(r.instruments[i].escape.steps, sim.metrics().escapes[i].steps);
 }
 
 }  // namespace
