@@ -90,6 +90,24 @@ int remove_unused_vertices(TriangleMesh& m) {
   return removed;
 }
 
+// Finite coordinates and vertex indices in range, or an InputError naming the first bad one.
+void check_indices_and_coordinates(const TriangleMesh& m, const std::string& source) {
+  const int nv = m.num_vertices();
+  for (int v = 0; v < nv; ++v) {
+    if (!m.vertices[v].allFinite())
+      throw InputError(source, "vertex " + std::to_string(v),
+                       "finite coordinates, got " + str(m.vertices[v]));
+  }
+  for (int t = 0; t < m.num_triangles(); ++t) {
+    for (int v : m.triangles[t]) {
+      if (v < 0 || v >= nv)
+        throw InputError(
+            source, "triangle " + std::to_string(t),
+            "vertex indices in [0, " + std::to_string(nv) + "), got " + std::to_string(v));
+    }
+  }
+}
+
 }  // namespace
 
 std::string MeshReport::summary() const {
@@ -109,22 +127,9 @@ std::string MeshReport::summary() const {
 
 MeshReport check_and_repair(TriangleMesh& m, const std::string& source) {
   MeshReport r;
-  const int nv = m.num_vertices();
 
   // 1. Indices and coordinates.
-  for (int v = 0; v < nv; ++v) {
-    if (!m.vertices[v].allFinite())
-      throw InputError(source, "vertex " + std::to_string(v),
-                       "finite coordinates, got " + str(m.vertices[v]));
-  }
-  for (int t = 0; t < m.num_triangles(); ++t) {
-    for (int v : m.triangles[t]) {
-      if (v < 0 || v >= nv)
-        throw InputError(
-            source, "triangle " + std::to_string(t),
-            "vertex indices in [0, " + std::to_string(nv) + "), got " + std::to_string(v));
-    }
-  }
+  check_indices_and_coordinates(m, source);
 
   // 2. Degenerate triangles and unused vertices.
   r.degenerate_removed = remove_degenerate(m);
@@ -367,20 +372,7 @@ MeshRepairReport repair_mesh(TriangleMesh& m, const std::string& source,
                              const MeshRepairSettings& settings) {
   MeshRepairReport r;
   r.triangles_before = m.num_triangles();
-  const int nv = m.num_vertices();
-  for (int v = 0; v < nv; ++v) {
-    if (!m.vertices[v].allFinite())
-      throw InputError(source, "vertex " + std::to_string(v),
-                       "finite coordinates, got " + str(m.vertices[v]));
-  }
-  for (int t = 0; t < m.num_triangles(); ++t) {
-    for (int v : m.triangles[t]) {
-      if (v < 0 || v >= nv)
-        throw InputError(
-            source, "triangle " + std::to_string(t),
-            "vertex indices in [0, " + std::to_string(nv) + "), got " + std::to_string(v));
-    }
-  }
+  check_indices_and_coordinates(m, source);
   r.degenerate_removed = remove_degenerate(m);
   r.duplicates_removed = remove_duplicates(m);
 
