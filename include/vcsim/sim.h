@@ -254,6 +254,7 @@ struct SimAnatomy {
   Lumen lumen;
   std::optional<CardiacMotion> motion;  // when the scenario beats and the anatomy has a heart
   AabbTree static_tree;                 // the lumen's tree when it does not beat (else empty)
+  TreeLocator locator;                  // the tree's edges, for locating tips (locate())
 };
 
 struct SimModel {
@@ -267,6 +268,7 @@ struct SimModel {
   const Lumen& lumen;
   const std::optional<CardiacMotion>& motion;
   const AabbTree& static_tree;
+  const TreeLocator& locator;
   // The catalogue the scene's instruments came from (and those an exchange adds).
   std::shared_ptr<const InstrumentCatalogue> catalogue;
   Sheath sheath;                      // the introducer sheath every instrument enters through

@@ -147,7 +147,7 @@ void Autopilot::start_phase(const SimModel& md, const SimState& st) {
   on_route_.assign(tree.num_segments(), 0);
   route_segment_.clear();
   for (const Vec3& p : route_) {
-    const TreeHit h = locate(tree, p);
+    const TreeHit h = md.locator.locate(p);
     on_route_[h.loc.segment] = 1;
     route_segment_.push_back(h.loc.segment);
   }
@@ -167,7 +167,7 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
   const InstrumentState& in = st.solver.instruments[L];
   auto depth = [&](int i) { return st.solver.instruments[i].drive.depth; };
   const Vec3 X = tip_rest(md, st, L);
-  const TreeHit hit = locate(md.tree, X);
+  const TreeHit hit = md.locator.locate(X);
 
   // Progress: the nearest route point within a window around the last progress.
   const std::size_t best =

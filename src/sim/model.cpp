@@ -199,7 +199,8 @@ SimModel::SimModel(std::shared_ptr<const SimAnatomy> a)
       tree(anatomy->tree),
       lumen(anatomy->lumen),
       motion(anatomy->motion),
-      static_tree(anatomy->static_tree) {}
+      static_tree(anatomy->static_tree),
+      locator(anatomy->locator) {}
 
 std::shared_ptr<const SimModel> build_sim_model(Scenario scenario) {
   VesselTree tree = load_anatomy(scenario);
@@ -264,6 +265,7 @@ std::shared_ptr<const SimModel> build_sim_model(Scenario scenario, VesselTree gi
                            ph.added.catalogue + "'");
   });
 
+  anatomy->locator = TreeLocator(tree);
   Lumen& lumen = anatomy->lumen;
   // A mesh as given (a patient's segmentation, a phantom), else built from the centrelines.
   lumen = is_mesh_file(sc.anatomy)

@@ -262,7 +262,7 @@ Vec3 tip_rest(const SimModel& md, const SimState& st, int i) {
 }
 
 TreeHit tip_location(const SimModel& md, const SimState& st, int i) {
-  return locate(md.tree, tip_rest(md, st, i));
+  return md.locator.locate(tip_rest(md, st, i));
 }
 
 bool all_landmarks_reached(const SimState& st) {

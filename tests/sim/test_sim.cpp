@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -34,6 +35,62 @@ TEST(Locate, PointsOnACentrelineAreFoundWhereTheyAre) {
   EXPECT_TRUE(is_descendant(tree, tree.find("lad"), tree.find("left_main")));
   EXPECT_TRUE(is_descendant(tree, tree.find("lad"), tree.find("lad")));
   EXPECT_FALSE(is_descendant(tree, tree.find("lad"), tree.find("rca")));
+}
+
+// The locator must give locate()'s answer bit for bit, ties included: the points are on
+// centrelines, at their shared junction points, in lumens, outside them, far away and not finite.
+TEST(Locate, TheLocatorGivesTheBruteForceAnswerExactly) {
+  std::vector<VesselTree> trees{default_patient()};
+  AnatomyVariation calibre;
+  calibre.aorta_radius_scale = 1.3;
+  calibre.coronary_radius_scale = 0.8;
+  trees.push_back(vary_anatomy(trees.front(), calibre));
+  for (std::uint64_t seed : {1u, 2u}) {
+    AnatomyVariation v;
+    v.tortuosity = 6e-3;
+    v.arch_elongation = 20e-3;
+    v.seed = seed;
+    trees.push_back(vary_anatomy(arch_anatomy(), v));
+  }
+  std::uint64_t state = 0x9E3779B97F4A7C15ull;
+  auto uniform = [&] {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<double>(state >> 11) * 0x1.0p-53;
+  };
+  for (const VesselTree& tree : trees) {
+    const TreeLocator loc(tree);
+    std::vector<Vec3> points{Vec3(1.0, 1.0, 1.0), Vec3(-50.0, 3.0, 0.2),
+                             Vec3::Constant(std::nan("")),
+                             Vec3::Constant(std::numeric_limits<double>::infinity())};
+    Vec3 lo = Vec3::Constant(1e9), hi = -lo;
+    int edges = 0;
+    for (const VesselSegment& seg : tree.segments) {
+      edges += static_cast<int>(seg.points.size()) - 1;
+      for (std::size_t k = 0; k < seg.points.size(); ++k) {
+        points.push_back(seg.points[k]);  // shared with a parent or child: ties
+        lo = lo.cwiseMin(seg.points[k]);
+        hi = hi.cwiseMax(seg.points[k]);
+        if (k + 1 < seg.points.size()) {
+          const Vec3 m = 0.5 * (seg.points[k] + seg.points[k + 1]);
+          const Vec3 off(uniform() - 0.5, uniform() - 0.5, uniform() - 0.5);
+          points.push_back(m + 1.5 * seg.radii[k] * off);
+        }
+      }
+    }
+    EXPECT_EQ(loc.num_edges(), edges);
+    for (int k = 0; k < 4000; ++k)
+      points.push_back(lo + (hi - lo).cwiseProduct(Vec3(uniform(), uniform(), uniform())) * 1.2 -
+                       0.1 * (hi - lo));
+    for (const Vec3& p : points) {
+      const TreeHit a = locate(tree, p), b = loc.locate(p);
+      ASSERT_EQ(a.loc.segment, b.loc.segment) << p.transpose();
+      // Bit for bit (NaN-free here: a point not finite is nowhere in both).
+      ASSERT_EQ(std::memcmp(&a.loc.distance, &b.loc.distance, sizeof(double)), 0) << p.transpose();
+      ASSERT_EQ(std::memcmp(&a.outside, &b.outside, sizeof(double)), 0) << p.transpose();
+    }
+  }
+  const TreeLocator none{VesselTree{}};
+  EXPECT_EQ(none.locate(Vec3::Zero()).loc.segment, -1);
 }
 
 TEST(MassScaling, MakesTheStepStableAndOnlyAddsMass) {
