@@ -24,6 +24,7 @@ void consider_segment(const VesselTree& tree, int si, const Vec3& p, double lo, 
   const VesselSegment& seg = tree.segments[si];
   double s0 = 0.0;
   for (std::size_t k = 0; k + 1 < seg.points.size(); ++k) {
+    if (s0 > hi) break;  // s0 only grows: no later edge starts within the range
     const Vec3 a = seg.points[k], d = seg.points[k + 1] - a;
     const double len2 = d.squaredNorm(), len = std::sqrt(len2);
     if (s0 + len >= lo && s0 <= hi) {
