@@ -319,11 +319,14 @@ struct LandmarkRecord {
 // An instrument's nodes found outside the vessel (physics.md 6.3): behind the lumen's wall by
 // more than their radius, or beyond an open end of the vessel tree. Seen by the contact queries.
 struct EscapeRecord {
-  std::int64_t steps = 0;     // steps in which one of its nodes was seen outside
-  double time = -1.0;         // s, the first such step's end; < 0: none
-  int node = -1;              // the first step's node farthest out
-  double distance = 0.0;      // m, how far out it was: behind the wall, or beyond the end's plane
-  int exit = -1;              // the open end it left by (index in open_ends(tree)); -1: the wall
+  std::int64_t steps = 0;  // steps in which one of its nodes was seen outside
+  double time = -1.0;      // s, the first such step's end; < 0: none
+  int node = -1;           // the first step's node farthest out
+  double distance = 0.0;   // m, how far out it was: behind the wall or a closed end's cap, or
+                           // beyond an open end's plane
+  // The end (index in open_ends(tree)) it left by: through an open end's disc, or behind a closed
+  // end's cap (physics.md 6.4); -1: the wall
+  int exit = -1;
   double max_distance = 0.0;  // m, the farthest out seen
 };
 

@@ -74,12 +74,15 @@ struct NodeContact {
 
 // A node found outside the vessel in a step (an output: SolverWorkspace::escape; physics.md
 // 6.3): its centre behind the lumen's wall by more than its radius, or beyond an open end's disc
-// (VesselWall::exits) by more than its radius. Seen by the contact queries the step makes anyway;
-// it changes nothing (the caller counts and reports it).
+// (VesselWall::exits) by more than its radius, or behind a closed end's cap by more than its
+// radius. Seen by the contact queries the step makes anyway; it changes nothing (the caller counts
+// and reports it).
 struct NodeEscape {
   int node = -1;          // the farthest out of the step's escaped nodes; -1: none
-  double distance = 0.0;  // m: its centre behind the wall, or beyond the open end's plane
-  int exit = -1;          // the wall's exit (index in VesselWall::exits) it left by; -1: the wall
+  double distance = 0.0;  // m: its centre behind the wall or cap, or beyond the open end's plane
+  // The wall's exit (index in VesselWall::exits) it left by, through its disc or, for a closed
+  // end, through its cap; -1: the wall
+  int exit = -1;
 };
 
 // One wire node held inside the outer instrument's lumen in the last step (concentric

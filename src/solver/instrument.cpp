@@ -121,17 +121,18 @@ void add_sheath_contacts(const Inst& in, const SolverSettings& set) {
 constexpr double kExitBand = 20e-3;
 
 // The escape check on a node just queried (physics.md 6.3), the cost of a compare per contact
-// and a dot product per open end: behind the lumen's wall (not a stent's: a node between a
-// stent and the wall is in the vessel) by more than its radius r, or through an open end's disc
-// beyond its plane by more than r. Keeps the step's farthest.
+// and a dot product per open end: behind the lumen's wall or a closed end's cap (not a stent's:
+// a node between a stent and the wall is in the vessel) by more than its radius r, or through an
+// open end's disc beyond its plane by more than r. Keeps the step's farthest.
 void note_escape(InstrumentScratch& w, int i, const Vec3& x, double r, const SphereContact& h,
                  std::span<const WallExit> exits) {
   NodeEscape& e = w.escape;
-  if (h.touching && h.centre_outside && h.triangle >= 0 && h.distance > r &&
+  if (h.touching && h.centre_outside && (h.triangle >= 0 || h.cap >= 0) && h.distance > r &&
       h.distance > e.distance)
-    e = {i, h.distance, -1};
+    e = {i, h.distance, h.cap};
   for (std::size_t k = 0; k < exits.size(); ++k) {
     const WallExit& ex = exits[k];
+    if (ex.closed) continue;  // a node beyond its disc is inside its cap, or behind it (above)
     const Vec3 rel = x - ex.centre;
     const double beyond = rel.dot(ex.outward);
     if (beyond <= r || beyond > r + kExitBand || beyond <= e.distance) continue;
