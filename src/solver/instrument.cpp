@@ -44,6 +44,22 @@ void drive_begin(const Inst& in, const DriveCommand& cmd, double dt) {
       cmd.mode == DriveCommand::Mode::kPosition ? (cmd.rotation - dr.roll) / dt : cmd.rotation;
   rate = clamp_abs(rate, sh.max_speed);
   spin = clamp_abs(spin, sh.max_spin);
+  // The grip slips (physics.md 6.5): against a resistance beyond what a hand passes on, the
+  // hand's advance or turn is not the instrument's. The command is a velocity (or a position),
+  // never limited by force, so without this a rod held by the wall would take whatever force
+  // the step needs to move it (149 N in two minutes of the soak, 17 kN in an hour). The last
+  // fine step's force decides, so it exceeds the grip by at most one step's rise.
+  dr.slipped = false;
+  if ((rate > 0.0 && dr.axial_force_raw > sh.grip_force) ||
+      (rate < 0.0 && dr.axial_force_raw < -sh.grip_force)) {
+    rate = 0.0;
+    dr.slipped = true;
+  }
+  if ((spin > 0.0 && dr.torque_raw > sh.grip_torque) ||
+      (spin < 0.0 && dr.torque_raw < -sh.grip_torque)) {
+    spin = 0.0;
+    dr.slipped = true;
+  }
   // Keep the first edge outside so the hand always holds a frame (and can turn the rod).
   const double max_depth = md.length - md.rest_length[0];
   const double depth = std::clamp(dr.depth + dt * rate, 0.0, max_depth);

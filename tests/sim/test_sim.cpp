@@ -370,6 +370,47 @@ TEST(CutEnd, AWirePushedIntoAClosedCutEndStaysInside) {
   EXPECT_GT(pushed, 5.0 * sliding + 0.02) << "sliding " << sliding << " N, pushed " << pushed;
 }
 
+// The grip slips (physics.md 6.5): a stiff 0.035" wire driven at full speed (velocity command,
+// 0.5 m/s) into the tube's closed start. The hand's command is a velocity, never limited by
+// force; the hand passes on at most Sheath::grip_force, so the hand force exceeds it by at most
+// the rise of the step that crossed it (the wire's column stopped by the cap: 19 N in one step,
+// 37 N at most), does not climb while the grip slips, and the depth stops following the command
+// (192 mm of the 500 mm commanded). With the grip unlimited the hand read 2.45 kN, and the wire
+// was pushed through the cap.
+TEST(Grip, AHandPushingAgainstAClosedEndSlips) {
+  test::TubeSpecs t;
+  t.radius_mm = 2.0;
+  Simulator sim(test::tube_scenario(std::filesystem::temp_directory_path() / "vcsim_grip", t,
+                                    R"([{"name": "wire", "catalogue": "wire-035-stiff-exchange",
+             "max_nodes": 160, "tip_segment_mm": 1}])"));
+  const double grip = sim.model().solver.instruments[0].sheath.grip_force;
+  StepCommands cmds;
+  cmds.reset(1);
+  cmds.drive[0] = {DriveCommand::Mode::kVelocity, 0.5, 0.0};
+  // The rise of a step that began at or below the grip (the hand still pushed), and of one that
+  // began above it (the hand slipped).
+  double largest = 0.0, pushing_rise = 0.0, slipping_rise = 0.0, previous = 0.0;
+  int slipped = 0;
+  const double until = 1.0;  // s: 500 mm commanded, 190 mm to the tube's end
+  while (sim.time() < until) {
+    sim.step(cmds);
+    const DriveState& d = sim.instrument(0).drive;
+    largest = std::max(largest, std::abs(d.axial_force));
+    double& rise = previous <= grip ? pushing_rise : slipping_rise;
+    rise = std::max(rise, d.axial_force - previous);
+    previous = d.axial_force;
+    slipped += d.slipped ? 1 : 0;
+  }
+  const double depth = sim.instrument(0).drive.depth;
+  EXPECT_EQ(sim.metrics().rollbacks, 0);
+  EXPECT_EQ(sim.metrics().escape_steps, 0);
+  EXPECT_GT(slipped, 0) << "the hand never reached the grip (largest force " << largest << " N)";
+  EXPECT_LE(largest, grip + pushing_rise) << "largest " << largest << " N";
+  EXPECT_LT(slipping_rise, 0.5) << "the force climbed while the grip slipped";
+  EXPECT_LT(depth, 0.5 * until - 0.05) << "the depth kept following the hand";
+  EXPECT_LT(depth, 0.190 + 0.06);
+}
+
 // The autopilot on the default scenario, physics only: the J wire is steered from the groin over
 // the iliac bifurcation and up the aorta into the ascending aorta, acting only through the hub.
 TEST(Autopilot, DefaultScenarioReachesTheAscendingAorta) {
