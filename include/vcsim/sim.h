@@ -895,14 +895,14 @@ struct SoakReport {
     double largest_force = 0.0;      // N
     double deepest = 0.0;            // m inserted at most
     int withdrawals = 0;             // times pulled all the way out (and back in)
+    std::int64_t slipped_steps = 0;  // steps in which the hand's grip slipped (DriveState)
     EscapeRecord escape;             // seen outside the vessel (SimMetrics::escapes)
   };
   std::vector<Instrument> instruments;
   // Resident size growth from the end of the first simulated minute to the end (fraction).
   double memory_growth() const;
-  // No non-finite value, no rollback, memory flat (growth under 1 %). Escapes are reported, not
-  // (yet) a failure: the random hands push the wires out of truncated branches' open ends
-  // (docs/scenarios.md, "Soak").
+  // No non-finite value, no rollback, memory flat (growth under 1 %), and no instrument seen
+  // outside the vessel (docs/scenarios.md, "Soak").
   bool passed() const;
 };
 
