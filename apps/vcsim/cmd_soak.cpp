@@ -59,6 +59,7 @@ nlohmann::json to_json(const SoakReport& r, const std::string& patient, const Si
                     {"largest_force_n", i.largest_force},
                     {"deepest_mm", i.deepest * 1e3},
                     {"withdrawals", i.withdrawals},
+                    {"slipped_steps", i.slipped_steps},
                     {"escape", escape}});
   }
   return {{"patient", patient},
@@ -110,10 +111,11 @@ int cmd_soak(const SoakOptions& o) {
                   << " mm deepest, " << i.withdrawals << " withdrawals; largest hand force "
                   << std::setprecision(2) << i.largest_force << " N, " << i.departures << " of "
                   << i.checked_steps << " steps more than 1 N off their local median (largest "
-                  << i.largest_departure << " N)\n";
+                  << i.largest_departure << " N); the grip slipped in " << i.slipped_steps
+                  << " steps\n";
       for (std::size_t k = 0; k < r.instruments.size(); ++k)
         if (r.instruments[k].escape.steps > 0)
-          std::cout << "  ESCAPE: " << r.instruments[k].escape.steps << " steps; first "
+          std::cout << "  ESCAPE (a failure): " << r.instruments[k].escape.steps << " steps; first "
                     << describe_escape(sim.model(), static_cast<int>(k), r.instruments[k].escape)
                     << "\n";
       std::cout << "  " << (r.passed() ? "passed" : "FAILED") << "\n";

@@ -166,6 +166,9 @@ struct SphereContact {
   Vec3 point = Vec3::Zero();    // closest wall point, m
   int triangle = -1;            // triangle holding `point`
   int num_touching = 0;         // triangles overlapping the sphere
+  // The closed end (VesselWall::exits index, WallExit::closed) whose cap holds `point`; -1: the
+  // mesh (or a stent). A centre behind a cap is outside the vessel, as behind the mesh.
+  int cap = -1;
   // The sums the result came from, so that queries of the parts of one wall can be merged into
   // the query of the whole (SphereContactMerge): the closest feature's pseudo-normal over the
   // part's faces at it, and the overlapping faces' normals weighted by depth times area.
@@ -265,12 +268,16 @@ class AabbTree {
 // ---------------------------------------------------------------------------------------------
 // The wall instruments collide with
 
-// An open end of the lumen (a vessel end the mesh leaves open: the femoral access, the arch
-// branches, the distal coronaries): the disc a node crosses when it leaves the vessel there.
+// An end of the lumen the mesh leaves open (the femoral access, the arch branches, the distal
+// coronaries): the disc a node crosses when it leaves the vessel there. A `closed` end is a cut
+// end of a vessel that goes on in a body (physics.md 6.4): the wall closes it with a cap beyond
+// the disc (its contacts carry SphereContact::cap), so it is no way out; a node behind the cap is
+// outside the vessel.
 struct WallExit {
   Vec3 centre = Vec3::Zero();   // m, the disc's centre (on the vessel's centreline)
   Vec3 outward = Vec3::Zero();  // unit, out of the vessel
   double radius = 0.0;          // m
+  bool closed = false;
 };
 
 // The openings of a mesh as exits, one per boundary loop (MeshReport::boundary_loops, vertex
@@ -321,7 +328,8 @@ class VesselWall {
     return speed_bound() > 0.0;
   }
   // The lumen's open ends at the time set (none by default): a node beyond one has left the
-  // vessel (the solver's escape check, physics.md 6.3). Allocates nothing.
+  // vessel (the solver's escape check, physics.md 6.3), unless the end is closed (its cap's
+  // contacts say so instead). Allocates nothing.
   virtual std::span<const WallExit> exits() { return {}; }
 };
 

@@ -321,11 +321,14 @@ struct LandmarkRecord {
 // An instrument's nodes found outside the vessel (physics.md 6.3): behind the lumen's wall by
 // more than their radius, or beyond an open end of the vessel tree. Seen by the contact queries.
 struct EscapeRecord {
-  std::int64_t steps = 0;     // steps in which one of its nodes was seen outside
-  double time = -1.0;         // s, the first such step's end; < 0: none
-  int node = -1;              // the first step's node farthest out
-  double distance = 0.0;      // m, how far out it was: behind the wall, or beyond the end's plane
-  int exit = -1;              // the open end it left by (index in open_ends(tree)); -1: the wall
+  std::int64_t steps = 0;  // steps in which one of its nodes was seen outside
+  double time = -1.0;      // s, the first such step's end; < 0: none
+  int node = -1;           // the first step's node farthest out
+  double distance = 0.0;   // m, how far out it was: behind the wall or a closed end's cap, or
+                           // beyond an open end's plane
+  // The end (index in open_ends(tree)) it left by: through an open end's disc, or behind a closed
+  // end's cap (physics.md 6.4); -1: the wall
+  int exit = -1;
   double max_distance = 0.0;  // m, the farthest out seen
 };
 
@@ -894,14 +897,14 @@ struct SoakReport {
     double largest_force = 0.0;      // N
     double deepest = 0.0;            // m inserted at most
     int withdrawals = 0;             // times pulled all the way out (and back in)
+    std::int64_t slipped_steps = 0;  // steps in which the hand's grip slipped (DriveState)
     EscapeRecord escape;             // seen outside the vessel (SimMetrics::escapes)
   };
   std::vector<Instrument> instruments;
   // Resident size growth from the end of the first simulated minute to the end (fraction).
   double memory_growth() const;
-  // No non-finite value, no rollback, memory flat (growth under 1 %). Escapes are reported, not
-  // (yet) a failure: the random hands push the wires out of truncated branches' open ends
-  // (docs/scenarios.md, "Soak").
+  // No non-finite value, no rollback, memory flat (growth under 1 %), and no instrument seen
+  // outside the vessel (docs/scenarios.md, "Soak").
   bool passed() const;
 };
 

@@ -42,6 +42,12 @@ struct Sheath {
   // (physics.md 6.2) instead of meeting the vessel wall.
   double length = 0.0;
   double inner_radius = 0.0;
+  // The hand's grip (physics.md 6.5): the most axial force (N) and twisting moment (N m) it passes
+  // on. A command to push on (pull, turn) against a hand force beyond it slips: the instrument
+  // stays where it is in that step while the hand moves on. The default run's hand reads at most
+  // 2.6 N and 5.8 N mm (docs/measurements.md), so it never slips there.
+  double grip_force = 20.0;
+  double grip_torque = 0.05;
 };
 
 struct DriveState {
@@ -56,6 +62,10 @@ struct DriveState {
   // physics.md 6.1); equal to axial_force and torque without it.
   double axial_force_raw = 0.0;  // N
   double torque_raw = 0.0;       // N m
+  // The grip slipped in the last (fine) step: the command's advance or turn was not applied
+  // (Sheath::grip_force, grip_torque). An output for reports; the step does not read it, and it
+  // is not hashed (a state equal in everything else steps on the same).
+  bool slipped = false;
 };
 
 // One contact of a node with the wall in the last step (an output: SolverWorkspace::contacts).
@@ -74,12 +84,15 @@ struct NodeContact {
 
 // A node found outside the vessel in a step (an output: SolverWorkspace::escape; physics.md
 // 6.3): its centre behind the lumen's wall by more than its radius, or beyond an open end's disc
-// (VesselWall::exits) by more than its radius. Seen by the contact queries the step makes anyway;
-// it changes nothing (the caller counts and reports it).
+// (VesselWall::exits) by more than its radius, or behind a closed end's cap by more than its
+// radius. Seen by the contact queries the step makes anyway; it changes nothing (the caller counts
+// and reports it).
 struct NodeEscape {
   int node = -1;          // the farthest out of the step's escaped nodes; -1: none
-  double distance = 0.0;  // m: its centre behind the wall, or beyond the open end's plane
-  int exit = -1;          // the wall's exit (index in VesselWall::exits) it left by; -1: the wall
+  double distance = 0.0;  // m: its centre behind the wall or cap, or beyond the open end's plane
+  // The wall's exit (index in VesselWall::exits) it left by, through its disc or, for a closed
+  // end, through its cap; -1: the wall
+  int exit = -1;
 };
 
 // One wire node held inside the outer instrument's lumen in the last step (concentric

@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 #include <ostream>
 
+#include "sim_scratch.h"
 #include "vcsim/sim.h"
 #include "vcsim/units.h"
 
@@ -32,7 +33,8 @@ double physics_real_time_factor(const Simulator& sim) {
   return w > 0 ? sim.time() / w : 0.0;
 }
 
-// Where an escape went out: "wall", or the open end as "open end of 'segment' (start|end)".
+// Where an escape went out: "wall", the open end as "open end of 'segment' (start|end)", or a
+// closed end's cap (physics.md 6.4) as "cap of 'segment' (start|end)".
 std::string escape_where(const SimModel& md, int exit) {
   if (exit < 0) return "wall";
   const std::vector<OpenEnd> ends = open_ends(md.tree);
@@ -40,7 +42,10 @@ std::string escape_where(const SimModel& md, int exit) {
     return "opening " + std::to_string(exit - static_cast<int>(ends.size()) + 1) +
            " of the mesh that no centreline reaches";
   const OpenEnd& e = ends[static_cast<std::size_t>(exit)];
-  return "open end of '" + md.tree.segments[static_cast<std::size_t>(e.segment)].name + "' (" +
+  const bool closed =
+      !is_mesh_file(md.scenario.anatomy) && internal::access_end(md.tree, md.sheath) != exit;
+  return std::string(closed ? "cap" : "open end") + " of '" +
+         md.tree.segments[static_cast<std::size_t>(e.segment)].name + "' (" +
          (e.at_start ? "start" : "end") + ")";
 }
 
@@ -63,7 +68,8 @@ std::string describe_escape(const SimModel& md, int i, const EscapeRecord& e) {
   std::string s = buf;
   std::snprintf(buf, sizeof buf, "%.2f mm", e.distance * 1e3);
   if (e.exit < 0) return s + buf + " behind the wall";
-  return s + buf + " beyond the " + escape_where(md, e.exit);
+  const std::string where = escape_where(md, e.exit);
+  return s + buf + (where.rfind("cap", 0) == 0 ? " behind the " : " beyond the ") + where;
 }
 
 RunOutcome run_outcome(const Simulator& sim, const RunReport& r) {

@@ -19,9 +19,10 @@ struct StentTube {
   double reach = 0.0;                    // its radius (m)
 };
 
-// The wall the instruments meet: the lumen (lesions opened as the state has them) and, inside
-// it, the deployed stents, whose struts hold what passes through them. A node inside a stent's
-// span meets whichever of the two it penetrates more.
+// The wall the instruments meet: the lumen (lesions opened as the state has them), the caps of
+// its closed ends (WallExit::closed: a hemisphere of the end's radius on its disc, beyond it;
+// physics.md 6.4) and, inside it, the deployed stents, whose struts hold what passes through them.
+// A node inside a stent's span or a cap's meets whichever it penetrates most.
 class ProcedureWall final : public VesselWall {
  public:
   VesselWall* lumen = nullptr;
@@ -29,7 +30,7 @@ class ProcedureWall final : public VesselWall {
   const CardiacMotion* motion = nullptr;
   // The tree's open ends (open_ends order) at rest and their motion amplitudes at the centre;
   // exits() moves them to the time set (their discs carried, not turned: a distal coronary's end
-  // turns by a few degrees, a fraction of its radius in the escape check).
+  // turns by a few degrees, a fraction of its radius in the escape check and in its cap).
   std::vector<WallExit> exits_rest;
   std::vector<Vec3> exit_amp_c, exit_amp_r;
 
@@ -52,6 +53,8 @@ class ProcedureWall final : public VesselWall {
  private:
   void add_stents(std::span<const Vec3> centres, std::span<const double> radii,
                   std::span<SphereContact> out) const;
+  void add_caps(std::span<const Vec3> centres, std::span<const double> radii,
+                std::span<SphereContact> out);
   double time_ = 0.0;
   std::vector<WallExit> exits_;  // (exit) at exits_time_
   double exits_time_ = -1.0;
@@ -59,9 +62,16 @@ class ProcedureWall final : public VesselWall {
 
 // The tree's open ends as the wall's exits, with their motion amplitudes (none without motion),
 // in open_ends order; with `mesh_lumen` (a lumen imported from a mesh file) each end is the mesh's
-// own opening nearest it, and the mesh's openings that no end reaches follow.
+// own opening nearest it, and the mesh's openings that no end reaches follow. With `sheath` (a
+// lumen built from the tree) every end but the access end is closed (physics.md 6.4): the access
+// end is the one behind the sheath (facing against its axis, its centre behind the access point),
+// the nearest such; a mesh's openings stay open.
 void make_exits(const VesselTree& tree, const CardiacMotion* motion, ProcedureWall& wall,
-                const Lumen* mesh_lumen = nullptr);
+                const Lumen* mesh_lumen = nullptr, const Sheath* sheath = nullptr);
+
+// Index (open_ends order) of the tree's access end: the open end behind the sheath, facing
+// against its axis, nearest the access point; -1 if none.
+int access_end(const VesselTree& tree, const Sheath& sheath);
 
 struct SimScratch {
   // With `reuse` (a workspace of a model with the same anatomy, an exchange apart): its wall

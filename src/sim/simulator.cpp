@@ -226,7 +226,11 @@ internal::SimScratch::SimScratch(const SimModel& md, SimScratch* reuse) : solver
     wall.lumen = static_wall.get();
   }
   wall.motion = md.motion ? &*md.motion : nullptr;
-  make_exits(md.tree, wall.motion, wall, is_mesh_file(md.scenario.anatomy) ? &md.lumen : nullptr);
+  if (is_mesh_file(md.scenario.anatomy)) {
+    make_exits(md.tree, wall.motion, wall, &md.lumen);
+  } else {
+    make_exits(md.tree, wall.motion, wall, nullptr, &md.sheath);
+  }
   if (morphs && !md.motion) {
     std::vector<unsigned char> moved(md.lumen.mesh.vertices.size(), 0);
     for (int v : morph.vertices) moved[v] = 1;

@@ -129,6 +129,7 @@ void SoakWatch::after_step(const Simulator& sim) {
     const double f = st.drive.axial_force;
     SoakReport::Instrument& r = report_.instruments[static_cast<std::size_t>(i)];
     r.deepest = std::max(r.deepest, st.drive.depth);
+    if (st.drive.slipped) ++r.slipped_steps;
     const bool in = st.drive.depth >= Simulator::kWithdrawnDepth;
     if (!in && inserted_[static_cast<std::size_t>(i)]) ++r.withdrawals;
     inserted_[static_cast<std::size_t>(i)] = in ? 1 : 0;
@@ -204,7 +205,9 @@ double SoakReport::memory_growth() const {
 }
 
 bool SoakReport::passed() const {
-  return finite && rollbacks == 0 && memory_growth() < 0.01;
+  bool escaped = false;
+  for (const Instrument& i : instruments) escaped = escaped || i.escape.steps > 0;
+  return finite && rollbacks == 0 && memory_growth() < 0.01 && !escaped;
 }
 
 }  // namespace vcsim

@@ -20,6 +20,7 @@ double key(const SphereContact& c) {
 void ProcedureWall::query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
                                   std::span<SphereContact> out) {
   lumen->query_spheres(centres, radii, out);
+  add_caps(centres, radii, out);
   add_stents(centres, radii, out);
 }
 
@@ -27,17 +28,63 @@ void ProcedureWall::query_spheres(std::span<const Vec3> centres, std::span<const
                                   std::span<LeafCache* const> caches, double slack,
                                   std::span<SphereContact> out) {
   lumen->query_spheres(centres, radii, caches, slack, out);
+  add_caps(centres, radii, out);
   add_stents(centres, radii, out);
+}
+
+// A closed end's cap (physics.md 6.4): the hemisphere of the end's radius R on its disc, beyond
+// its plane, which the tube's wall meets tangentially at the disc's rim. The mesh has no wall
+// there, so a sphere beyond the plane and within R of the axis meets the cap from inside (centre
+// within R of the disc's centre) or from behind (farther, as far as the sphere reaches: as the
+// mesh's query, a centre deeper behind is "not near"). Beside the disc's cylinder the tube's rim
+// and whatever lies beyond are the mesh's.
+void ProcedureWall::add_caps(std::span<const Vec3> centres, std::span<const double> radii,
+                             std::span<SphereContact> out) {
+  const std::span<const WallExit> ends = exits();
+  for (std::size_t k = 0; k < ends.size(); ++k) {
+    const WallExit& e = ends[k];
+    if (!e.closed) continue;
+    const double rr = e.radius * e.radius;
+    for (std::size_t i = 0; i < centres.size(); ++i) {
+      const Vec3 rel = centres[i] - e.centre;
+      const double b = rel.dot(e.outward);
+      if (b <= 0.0) continue;
+      const double d2 = rel.squaredNorm();
+      if (d2 - b * b >= rr) continue;
+      const double rad = radii.size() == 1 ? radii[0] : radii[i];
+      const double rho = std::sqrt(d2);
+      if (rho >= e.radius + rad) continue;
+      SphereContact c;
+      c.centre_outside = rho > e.radius;
+      c.distance = std::abs(e.radius - rho);
+      c.touching = c.centre_outside || c.distance < rad;
+      if (!c.touching) continue;
+      c.depth = c.centre_outside ? rad + c.distance : rad - c.distance;
+      c.normal = -rel / rho;  // toward the disc's centre: into the lumen
+      c.point = e.centre - c.normal * e.radius;
+      c.num_touching = 1;
+      c.cap = static_cast<int>(k);
+      SphereContact& o = out[i];
+      if (!o.touching || key(c) < key(o)) o = c;
+    }
+  }
 }
 
 bool ProcedureWall::moves_near(const Vec3& centre, double radius) const {
   if (lumen->moves_near(centre, radius)) return true;
   if (lumen->speed_bound() <= 0.0) return false;
   // A stent's tube is placed where the heart has carried it each step: within its reach of its
-  // middle now, plus more than any cardiac displacement (2 cm) for where it may go.
+  // middle now, plus more than any cardiac displacement (2 cm) for where it may go. So is a
+  // moving closed end's cap (a distal coronary's), within its radius of its disc's centre.
   constexpr double kStentTravel = 0.02;
   for (const StentTube& t : stents)
     if ((centre - t.middle).norm() < t.reach + radius + kStentTravel) return true;
+  for (std::size_t k = 0; k < exits_rest.size(); ++k) {
+    const WallExit& e = exits_rest[k];
+    if (e.closed && (exit_amp_c[k].squaredNorm() > 0.0 || exit_amp_r[k].squaredNorm() > 0.0) &&
+        (centre - e.centre).norm() < e.radius + radius + kStentTravel)
+      return true;
+  }
   return false;
 }
 
@@ -56,8 +103,25 @@ std::span<const WallExit> ProcedureWall::exits() {
   return exits_;
 }
 
+int access_end(const VesselTree& tree, const Sheath& sheath) {
+  const Vec3 axis = sheath.frame * Vec3::UnitZ();
+  const std::vector<OpenEnd> ends = open_ends(tree);
+  int best = -1;
+  double best_d = 0.0;
+  for (std::size_t k = 0; k < ends.size(); ++k) {
+    const OpenEnd& e = ends[k];
+    const double d = (e.centre - sheath.access_point).norm();
+    if (e.outward.dot(axis) >= 0.0 || (e.centre - sheath.access_point).dot(axis) > 0.0 ||
+        (best >= 0 && d >= best_d))
+      continue;
+    best = static_cast<int>(k);
+    best_d = d;
+  }
+  return best;
+}
+
 void make_exits(const VesselTree& tree, const CardiacMotion* motion, ProcedureWall& wall,
-                const Lumen* mesh_lumen) {
+                const Lumen* mesh_lumen, const Sheath* sheath) {
   wall.exits_rest.clear();
   wall.exit_amp_c.clear();
   wall.exit_amp_r.clear();
@@ -70,7 +134,13 @@ void make_exits(const VesselTree& tree, const CardiacMotion* motion, ProcedureWa
   };
   const std::vector<OpenEnd> ends = open_ends(tree);
   if (!mesh_lumen) {
-    for (const OpenEnd& e : ends) add({e.centre, e.outward, e.radius});
+    // A vessel cut off in the model goes on in a body: what is pushed into it meets resistance,
+    // not free space. Only the access end, where the instruments come in, stays open.
+    const int open = sheath ? access_end(tree, *sheath) : -1;
+    for (std::size_t k = 0; k < ends.size(); ++k) {
+      const OpenEnd& e = ends[k];
+      add({e.centre, e.outward, e.radius, sheath != nullptr && static_cast<int>(k) != open});
+    }
     return;
   }
   // A mesh as given has its own openings (boundary loops), and centrelines drawn or computed for

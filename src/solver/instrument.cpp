@@ -44,6 +44,22 @@ void drive_begin(const Inst& in, const DriveCommand& cmd, double dt) {
       cmd.mode == DriveCommand::Mode::kPosition ? (cmd.rotation - dr.roll) / dt : cmd.rotation;
   rate = clamp_abs(rate, sh.max_speed);
   spin = clamp_abs(spin, sh.max_spin);
+  // The grip slips (physics.md 6.5): against a resistance beyond what a hand passes on, the
+  // hand's advance or turn is not the instrument's. The command is a velocity (or a position),
+  // never limited by force, so without this a rod held by the wall would take whatever force
+  // the step needs to move it (149 N in two minutes of the soak, 17 kN in an hour). The last
+  // fine step's force decides, so it exceeds the grip by at most one step's rise.
+  dr.slipped = false;
+  if ((rate > 0.0 && dr.axial_force_raw > sh.grip_force) ||
+      (rate < 0.0 && dr.axial_force_raw < -sh.grip_force)) {
+    rate = 0.0;
+    dr.slipped = true;
+  }
+  if ((spin > 0.0 && dr.torque_raw > sh.grip_torque) ||
+      (spin < 0.0 && dr.torque_raw < -sh.grip_torque)) {
+    spin = 0.0;
+    dr.slipped = true;
+  }
   // Keep the first edge outside so the hand always holds a frame (and can turn the rod).
   const double max_depth = md.length - md.rest_length[0];
   const double depth = std::clamp(dr.depth + dt * rate, 0.0, max_depth);
@@ -121,17 +137,18 @@ void add_sheath_contacts(const Inst& in, const SolverSettings& set) {
 constexpr double kExitBand = 20e-3;
 
 // The escape check on a node just queried (physics.md 6.3), the cost of a compare per contact
-// and a dot product per open end: behind the lumen's wall (not a stent's: a node between a
-// stent and the wall is in the vessel) by more than its radius r, or through an open end's disc
-// beyond its plane by more than r. Keeps the step's farthest.
+// and a dot product per open end: behind the lumen's wall or a closed end's cap (not a stent's:
+// a node between a stent and the wall is in the vessel) by more than its radius r, or through an
+// open end's disc beyond its plane by more than r. Keeps the step's farthest.
 void note_escape(InstrumentScratch& w, int i, const Vec3& x, double r, const SphereContact& h,
                  std::span<const WallExit> exits) {
   NodeEscape& e = w.escape;
-  if (h.touching && h.centre_outside && h.triangle >= 0 && h.distance > r &&
+  if (h.touching && h.centre_outside && (h.triangle >= 0 || h.cap >= 0) && h.distance > r &&
       h.distance > e.distance)
-    e = {i, h.distance, -1};
+    e = {i, h.distance, h.cap};
   for (std::size_t k = 0; k < exits.size(); ++k) {
     const WallExit& ex = exits[k];
+    if (ex.closed) continue;  // a node beyond its disc is inside its cap, or behind it (above)
     const Vec3 rel = x - ex.centre;
     const double beyond = rel.dot(ex.outward);
     if (beyond <= r || beyond > r + kExitBand || beyond <= e.distance) continue;

@@ -282,6 +282,8 @@ std::uint64_t SolverModel::hash() const {
     h.add_value(im.sheath.max_spin);
     h.add_value(im.sheath.length);
     h.add_value(im.sheath.inner_radius);
+    h.add_value(im.sheath.grip_force);
+    h.add_value(im.sheath.grip_torque);
     h.add_value(im.contact.mu_static);
     h.add_value(im.contact.mu_dynamic);
     h.add_value(im.driven);
@@ -310,6 +312,8 @@ InstrumentModel make_instrument_model(const RodDef& def_in, const Sheath& sheath
   for (int k = 0; k < 3; ++k) require_finite(sheath.access_point[k], "sheath", "access_point");
   require_positive(sheath.max_speed, "sheath", "max_speed");
   require_positive(sheath.max_spin, "sheath", "max_spin");
+  require_positive(sheath.grip_force, "sheath", "grip_force");
+  require_positive(sheath.grip_torque, "sheath", "grip_torque");
   // The rod as it lies on the sheath axis with nothing inserted.
   const Quat frame = sheath.frame.normalized();
   const Vec3 axis = frame * Vec3::UnitZ();

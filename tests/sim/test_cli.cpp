@@ -82,12 +82,37 @@ TEST(RunCli, UnreachedTargetEndsWithAReport) {
   EXPECT_FALSE(j["landmarks"][1]["reached"].get<bool>());
 }
 
-// No silent escape (physics.md 6.3): a straight tube open at its start, the access 190 mm along
-// it heading there, and a timeline pushing a 0.014" wire 210 mm in 2.1 s, out of the open start.
+// An open cylinder of radius 2 mm from z = 0 to 200 mm as an STL file (mm), normals into the
+// lumen: a mesh whose openings are its exits.
+void write_tube_stl(const fs::path& file) {
+  std::ofstream f(file);
+  f << "solid tube\n";
+  constexpr int kAround = 32, kAlong = 100;
+  auto p = [](int a, int z) {
+    const double phi = 2.0 * 3.141592653589793 * a / kAround;
+    return std::to_string(2.0 * std::cos(phi)) + " " + std::to_string(2.0 * std::sin(phi)) + " " +
+           std::to_string(2.0 * z);
+  };
+  auto tri = [&](const std::string& a, const std::string& b, const std::string& c) {
+    f << "facet normal 0 0 0\nouter loop\nvertex " << a << "\nvertex " << b << "\nvertex " << c
+      << "\nendloop\nendfacet\n";
+  };
+  for (int z = 0; z < kAlong; ++z)
+    for (int a = 0; a < kAround; ++a) {
+      tri(p(a, z), p(a, z + 1), p(a + 1, z));
+      tri(p(a + 1, z), p(a, z + 1), p(a + 1, z + 1));
+    }
+  f << "endsolid tube\n";
+}
+
+// No silent escape (physics.md 6.3): a straight tube open at its start (a mesh file: a tree's cut
+// ends are closed, physics.md 6.4, a mesh's openings stay open), the access 190 mm along it
+// heading there, and a timeline pushing a 0.014" wire 210 mm in 2.1 s, out of the open start.
 // The escape is reported once on the console and in metrics.json, and the run exits with status
 // 4; with --stop-on-escape (or the scenario's stop_on_escape) it ends at that step.
 TEST(RunCli, AnEscapeIsReportedAndCanStopTheRun) {
   const fs::path d = scratch("escape");
+  write_tube_stl(d / "tube.stl");
   write(d / "tube.json", R"({"format": "vcsim-anatomy", "version": 1, "name": "tube",
     "coordinates": "LPS", "open_start": true, "access": {"segment": "tube", "distance_mm": 190},
     "segments": [{"name": "tube", "kind": "artery", "parent": null,
@@ -96,7 +121,8 @@ TEST(RunCli, AnEscapeIsReportedAndCanStopTheRun) {
     {"t_s": 0, "instruments": {"wire": {"translation_mm": 0, "rotation_deg": 0}}},
     {"t_s": 2.1, "instruments": {"wire": {"translation_mm": 210, "rotation_deg": 0}}}]})");
   write(d / "s.json", R"({"format": "vcsim-scenario", "version": 1, "name": "inlet",
-    "anatomy": "tube.json", "motion": {"beating": false}, "dt_ms": 0.5, "time_limit_s": 3,
+    "anatomy": "tube.stl", "centrelines": "tube.json", "mesh_unit_mm": 1,
+    "motion": {"beating": false}, "dt_ms": 0.5, "time_limit_s": 3,
     "sheath_length_mm": 10,
     "instruments": [{"name": "wire", "catalogue": "wire-014-floppy", "max_nodes": 160,
                      "tip_segment_mm": 1}],
@@ -144,27 +170,7 @@ TEST(RunCli, AnEscapeIsReportedAndCanStopTheRun) {
 // the wire leaves the mesh, 20 mm later, and still named by the tree's end.
 TEST(RunCli, AMeshsOwnOpeningIsItsExit) {
   const fs::path d = scratch("mesh-exit");
-  {
-    // An open cylinder of radius 2 mm from z = 0 to 200 mm, normals into the lumen.
-    std::ofstream f(d / "tube.stl");
-    f << "solid tube\n";
-    constexpr int kAround = 32, kAlong = 100;
-    auto p = [](int a, int z) {
-      const double phi = 2.0 * 3.141592653589793 * a / kAround;
-      return std::to_string(2.0 * std::cos(phi)) + " " + std::to_string(2.0 * std::sin(phi)) + " " +
-             std::to_string(2.0 * z);
-    };
-    auto tri = [&](const std::string& a, const std::string& b, const std::string& c) {
-      f << "facet normal 0 0 0\nouter loop\nvertex " << a << "\nvertex " << b << "\nvertex " << c
-        << "\nendloop\nendfacet\n";
-    };
-    for (int z = 0; z < kAlong; ++z)
-      for (int a = 0; a < kAround; ++a) {
-        tri(p(a, z), p(a, z + 1), p(a + 1, z));
-        tri(p(a + 1, z), p(a, z + 1), p(a + 1, z + 1));
-      }
-    f << "endsolid tube\n";
-  }
+  write_tube_stl(d / "tube.stl");
   write(d / "tube.json", R"({"format": "vcsim-anatomy", "version": 1, "name": "tube",
     "coordinates": "LPS", "open_start": true, "access": {"segment": "tube", "distance_mm": 170},
     "segments": [{"name": "tube", "kind": "artery", "parent": null,

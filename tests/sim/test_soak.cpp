@@ -85,5 +85,17 @@ TEST(Soak, AShortSoakOfTheBeatingPatientIsFiniteWithoutRollback) {
     EXPECT_EQ(r.instruments[i].escape.steps, sim.metrics().escapes[i].steps);
 }
 
+// An escape fails the soak (issue 29: the abuse runs have none), as a rollback does.
+TEST(Soak, AnEscapeIsAFailure) {
+  SoakReport r;
+  r.instruments.resize(2);
+  EXPECT_TRUE(r.passed());
+  r.instruments[1].escape.steps = 1;
+  EXPECT_FALSE(r.passed());
+  r.instruments[1].escape.steps = 0;
+  r.rollbacks = 1;
+  EXPECT_FALSE(r.passed());
+}
+
 }  // namespace
 }  // namespace vcsim
