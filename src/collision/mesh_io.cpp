@@ -484,9 +484,14 @@ void check_obj(std::span<const char> bytes, const std::string& path) {
       const bool ok = kind == 0   ? w.size() == 3 || w.size() == 4 || w.size() == 6
                       : kind == 1 ? w.size() >= 1 && w.size() <= 3
                                   : w.size() == 3;
-      if (!ok ||
-          !std::all_of(w.begin(), w.end(), [](const std::string& x) { return is_decimal(x); }))
-        throw fail("'" + key + "' and its finite decimal numbers (v: 3, 4 or 6; vt: 1-3; vn: 3)");
+      // A number beginning with '.' is none to assimp's count of a line's components (a
+      // coloured vertex "v x y z r .5 b" counted as one of five leaked the mesh it was building):
+      // refused, so that both count the same.
+      if (!ok || !std::all_of(w.begin(), w.end(),
+                              [](const std::string& x) { return is_decimal(x) && x[0] != '.'; }))
+        throw fail("'" + key +
+                   "' and its finite decimal numbers, each beginning with a digit or a sign (v: 3, "
+                   "4 or 6; vt: 1-3; vn: 3)");
       if (++count[kind] > kMaxMeshVertices)
         throw fail("at most " + std::to_string(kMaxMeshVertices) + " vertices");
       continue;

@@ -348,6 +348,11 @@ TEST_F(MeshIo, ObjIndicesAndCountsAreChecked) {
       {v + "f\xff\xfb 1 2 3\n", "OBJ keyword"},
       {v + "f 1 2 3/", "got '3/'"},
       {v + " f 1 2 3\n", "start of the line"},
+      // A leak inside assimp (the OBJ campaign of 2026-11-26 evening): a number written ".5"
+      // is no number to assimp's count of a vertex's components, so a coloured vertex
+      // "v x y z r .5 b" read as one of five, and faces in a second group leaked its mesh.
+      {v + "v 0 9 10 0.5 .5 0.5\nf 1 2 4\ng a\nf 2 3 4\n", "beginning with a digit or a sign"},
+      {v + "vn .5 0 1\nf 1 2 3\n", "line 4"},
   };
   for (const auto& c : leaks) {
     write_bytes(p, c.text);
