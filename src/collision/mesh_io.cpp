@@ -498,6 +498,10 @@ void check_obj(std::span<const char> bytes, const std::string& path) {
     }
     if (key != "f" && key != "l" && key != "p") continue;
     if (w.empty()) throw fail("'" + key + "' with vertex indices");
+    // A line of one point, alone in a group, leaked the mesh assimp was building (the OBJ
+    // campaign, 2026-11-26); a polyline has two points at least, a face three.
+    if (key == "l" && w.size() < 2) throw fail("'l' with two vertex indices at least");
+    if (key == "f" && w.size() < 3) throw fail("'f' with three vertex indices at least");
     for (const std::string& corner : w) {
       // v, v/vt, v//vn or v/vt/vn: integers, non-zero, negative ones relative to what is before.
       std::size_t from = 0;

@@ -353,6 +353,9 @@ TEST_F(MeshIo, ObjIndicesAndCountsAreChecked) {
       // "v x y z r .5 b" read as one of five, and faces in a second group leaked its mesh.
       {v + "v 0 9 10 0.5 .5 0.5\nf 1 2 4\ng a\nf 2 3 4\n", "beginning with a digit or a sign"},
       {v + "vn .5 0 1\nf 1 2 3\n", "line 4"},
+      // And a line of one point alone in a group after a face (the same campaign).
+      {v + "f 1 2 3\ng a\nl 3\n", "'l' with two vertex indices at least"},
+      {v + "f 1 2\n", "'f' with three vertex indices at least"},
   };
   for (const auto& c : leaks) {
     write_bytes(p, c.text);
