@@ -330,6 +330,9 @@ struct EscapeRecord {
   // end's cap (physics.md 6.4); -1: the wall
   int exit = -1;
   double max_distance = 0.0;  // m, the farthest out seen
+  // The first step's node: where it was (m) and the tree's place nearest it at rest (locate())
+  Vec3 position = Vec3::Zero();
+  TreeLocation near;
 };
 
 // What a run has done so far (accumulated by every step; no wall-clock times, so that equal

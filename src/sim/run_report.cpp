@@ -56,7 +56,12 @@ nlohmann::json escape_json(const SimModel& md, const EscapeRecord& e) {
           {"node", e.node},
           {"distance_mm", e.distance * 1e3},
           {"where", escape_where(md, e.exit)},
-          {"max_distance_mm", e.max_distance * 1e3}};
+          {"max_distance_mm", e.max_distance * 1e3},
+          {"position_mm", {e.position.x() * 1e3, e.position.y() * 1e3, e.position.z() * 1e3}},
+          {"nearest_segment", e.near.segment >= 0
+                                  ? md.tree.segments[static_cast<std::size_t>(e.near.segment)].name
+                                  : std::string()},
+          {"nearest_distance_mm", e.near.distance * 1e3}};
 }
 
 }  // namespace
@@ -67,9 +72,17 @@ std::string describe_escape(const SimModel& md, int i, const EscapeRecord& e) {
                 md.instrument_name(i).c_str(), e.node);
   std::string s = buf;
   std::snprintf(buf, sizeof buf, "%.2f mm", e.distance * 1e3);
-  if (e.exit < 0) return s + buf + " behind the wall";
+  std::string near;
+  if (e.near.segment >= 0) {
+    char at[160];
+    std::snprintf(at, sizeof at, " (nearest vessel '%s', %.0f mm along it)",
+                  md.tree.segments[static_cast<std::size_t>(e.near.segment)].name.c_str(),
+                  e.near.distance * 1e3);
+    near = at;
+  }
+  if (e.exit < 0) return s + buf + " behind the wall" + near;
   const std::string where = escape_where(md, e.exit);
-  return s + buf + (where.rfind("cap", 0) == 0 ? " behind the " : " beyond the ") + where;
+  return s + buf + (where.rfind("cap", 0) == 0 ? " behind the " : " beyond the ") + where + near;
 }
 
 RunOutcome run_outcome(const Simulator& sim, const RunReport& r) {

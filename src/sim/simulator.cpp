@@ -122,6 +122,9 @@ std::uint64_t SimState::hash() const {
       h.add_value(e.distance);
       h.add_value(e.exit);
       h.add_value(e.max_distance);
+      h.add_value(e.position);
+      h.add_value(e.near.segment);
+      h.add_value(e.near.distance);
     }
   }
   procedure.hash_into(h);
@@ -303,6 +306,12 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
         rec.node = e.node;
         rec.distance = e.distance;
         rec.exit = e.exit;
+        // Where, for the person reading the report: the node's place and the vessel nearest it.
+        rec.position = in.rod.x[static_cast<std::size_t>(e.node)];
+        Vec3 X = rec.position;
+        if (md.motion)
+          for (int k = 0; k < 3; ++k) X = rec.position - md.motion->displacement(X, st.time());
+        rec.near = md.locator.locate(X).loc;
       }
       ++rec.steps;
       rec.max_distance = std::max(rec.max_distance, e.distance);

@@ -150,6 +150,10 @@ TEST(RunCli, AnEscapeIsReportedAndCanStopTheRun) {
     const auto& e = j["instruments"][0]["escape"];
     ASSERT_TRUE(e.is_object()) << j["instruments"][0].dump();
     EXPECT_EQ(e["where"].get<std::string>(), where);
+    // Which vessel it was near: the tube, at its start (the wire left by its inlet).
+    EXPECT_EQ(e["nearest_segment"].get<std::string>(), "tube");
+    EXPECT_LT(e["nearest_distance_mm"].get<double>(), 1.0);
+    EXPECT_NE(r.err.find("nearest vessel 'tube'", at), std::string::npos) << r.err;
     EXPECT_GT(e["distance_mm"].get<double>(), 0.17);  // the wire's radius
     // The tip passes the open start at 190 mm inserted, 1.9 s in.
     EXPECT_GT(e["first_time_s"].get<double>(), 1.9);
