@@ -404,6 +404,9 @@ class CardiacMotion {
   void amplitudes(const Vec3& X, Vec3& a_cardiac, Vec3& a_resp) const;
   Vec3 displacement(const Vec3& X, double t) const;
   Vec3 velocity(const Vec3& X, double t) const;  // du/dt at the rest point X, m/s
+  // The rest point X of a point p seen at time t: X = p - u(X, t) by three fixed-point steps (u is
+  // smooth and small against its length scale).
+  Vec3 rest_point(const Vec3& p, double t) const;
 
   // The tree's centrelines moved to time t (the same field as the mesh vertices).
   VesselTree moved_tree(const VesselTree& rest, double t) const;

@@ -125,6 +125,12 @@ Vec3 CardiacMotion::displacement(const Vec3& X, double t) const {
   return cardiac_waveform(t) * a_c + respiratory_waveform(t) * a_r;
 }
 
+Vec3 CardiacMotion::rest_point(const Vec3& p, double t) const {
+  Vec3 X = p;
+  for (int k = 0; k < 3; ++k) X = p - displacement(X, t);
+  return X;
+}
+
 Vec3 CardiacMotion::velocity(const Vec3& X, double t) const {
   Vec3 a_c, a_r;
   amplitudes(X, a_c, a_r);

@@ -60,12 +60,9 @@ std::pair<double, double> span_of(std::span<const double> xs) {
   return {std::min(xs.front(), xs.back()), std::max(xs.front(), xs.back())};
 }
 
-// The rest-anatomy point of p at time t (fixed-point iteration of X = p - u(X, t)).
+// The rest-anatomy point of p at time t (CardiacMotion::rest_point; p itself without motion).
 Vec3 rest_point(const CardiacMotion* motion, const Vec3& p, double t) {
-  Vec3 X = p;
-  if (motion)
-    for (int k = 0; k < 3; ++k) X = p - motion->displacement(X, t);
-  return X;
+  return motion ? motion->rest_point(p, t) : p;
 }
 
 void hash_opening(StateHasher& h, const std::vector<LesionOpening>& v) {

@@ -260,12 +260,8 @@ Vec3 tip(const SimState& st, int i) {
 }
 
 Vec3 tip_rest(const SimModel& md, const SimState& st, int i) {
-  // X = p - u(X, t) by fixed-point iteration (u is smooth and small against its length scale).
   const Vec3 p = tip(st, i);
-  Vec3 X = p;
-  if (md.motion)
-    for (int k = 0; k < 3; ++k) X = p - md.motion->displacement(X, st.time());
-  return X;
+  return md.motion ? md.motion->rest_point(p, st.time()) : p;
 }
 
 TreeHit tip_location(const SimModel& md, const SimState& st, int i) {
@@ -308,10 +304,10 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
         rec.exit = e.exit;
         // Where, for the person reading the report: the node's place and the vessel nearest it.
         rec.position = in.rod.x[static_cast<std::size_t>(e.node)];
-        Vec3 X = rec.position;
-        if (md.motion)
-          for (int k = 0; k < 3; ++k) X = rec.position - md.motion->displacement(X, st.time());
-        rec.near = md.locator.locate(X).loc;
+        rec.near =
+            md.locator
+                .locate(md.motion ? md.motion->rest_point(rec.position, st.time()) : rec.position)
+                .loc;
       }
       ++rec.steps;
       rec.max_distance = std::max(rec.max_distance, e.distance);
