@@ -499,8 +499,8 @@ class BeatingLumen {
 
  private:
   struct Patch {
-    TriangleMesh mesh;
-    AabbTree tree;
+    TriangleMesh mesh;  // a moving patch's triangles in its build tree's visit order
+    AabbTree tree;      // the static part's only: a moving patch is queried triangle by triangle
     std::vector<int> global_vertex;             // local vertex -> rest mesh vertex
     std::vector<int> global_triangle;           // local triangle -> rest mesh triangle
     std::vector<Vec3> rest, a_cardiac, a_resp;  // (nv local)
@@ -535,6 +535,7 @@ class BeatingLumen {
   int num_triangles_ = 0;
   int num_vertices_ = 0;
   double max_amp_c_ = 0.0, max_amp_r_ = 0.0;
+  double margin_ = 0.0;  // m, the fat margin of a moving patch's box
   // Moving patches binned by their box at cardiac phases c = k / (n - 1), each grown to cover
   // half a bin either side and any respiration, so a node is looked up in the grid of its phase.
   std::vector<PatchGrid> phase_grids_;

@@ -219,6 +219,12 @@ struct LeafCache {
   void clear() { reach = -1.0; }
 };
 
+// Contact of one sphere with every triangle of `mesh` in index order, without a tree: for a mesh
+// of a few triangles that moves every step (no refit). The same rules as AabbTree::query_sphere;
+// with the triangles in the tree's visit_order the result equals the tree's exactly.
+SphereContact query_sphere_each(const TriangleMesh& mesh, const Vec3& centre, double radius,
+                                const SphereQuerySettings& settings = {});
+
 class AabbTree {
  public:
   AabbTree() = default;
@@ -247,6 +253,11 @@ class AabbTree {
   void query_spheres(const TriangleMesh& mesh, std::span<const Vec3> centres,
                      std::span<const double> radii, std::span<SphereContact> out,
                      const SphereQuerySettings& settings = {}) const;
+
+  // The triangles in the order every query meets them: a query skips the leaves its sphere does
+  // not reach but never reorders the rest. A mesh of a few triangles stored in this order can be
+  // queried with query_sphere_each and no tree, with the same result.
+  std::vector<int> visit_order() const;
 
   const std::vector<AabbNode>& nodes() const { return nodes_; }
   const std::vector<int>& triangle_order() const { return order_; }  // leaf slots -> triangle

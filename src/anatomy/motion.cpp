@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <limits>
 #include <numbers>
 
 #include "vcsim/anatomy.h"
@@ -210,6 +211,7 @@ BeatingLumen::BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion
     throw InputError("BeatingLumenSettings", "patch_triangles", "expected at least 8");
   num_triangles_ = rest.num_triangles();
   num_vertices_ = rest.num_vertices();
+  margin_ = settings.tree.margin;
   std::vector<Vec3> ac(rest.vertices.size()), ar(rest.vertices.size());
   for (std::size_t v = 0; v < rest.vertices.size(); ++v)
     motion_.amplitudes(rest.vertices[v], ac[v], ar[v]);
@@ -261,6 +263,22 @@ BeatingLumen::BeatingLumen(const TriangleMesh& rest, const CardiacMotion& motion
     p.tree.build(p.mesh, settings.tree);
     p.moving = amp > 1e-9;
     p.box = p.tree.nodes().front().box;
+    if (p.moving) {
+      // A moving patch is a few triangles queried one by one (query_sphere_each), stored in its
+      // tree's visit order so that the answer is the tree's to the last bit, without the tree's
+      // refit at every move.
+      const std::vector<int> order = p.tree.visit_order();
+      std::vector<std::array<int, 3>> sorted(order.size());
+      std::vector<int> global(order.size());
+      for (std::size_t k = 0; k < order.size(); ++k) {
+        sorted[k] = p.mesh.triangles[order[k]];
+        global[k] = p.global_triangle[order[k]];
+      }
+      p.mesh.triangles = std::move(sorted);
+      p.global_triangle = std::move(global);
+      p.mesh.recompute_normals();
+      p.tree = AabbTree{};
+    }
     p.rest_box = p.box;
     p.amp_c_box = box_of(p.a_cardiac);
     p.amp_r_box = box_of(p.a_resp);
@@ -403,10 +421,20 @@ void BeatingLumen::move_patch(Patch& p, double c, double r, double t) {
   const std::size_t n = p.rest.size();
   Vec3* x = p.mesh.vertices.data();
   const Vec3 *x0 = p.rest.data(), *ac = p.a_cardiac.data(), *ar = p.a_resp.data();
-  for (std::size_t i = 0; i < n; ++i) x[i] = x0[i] + c * ac[i] + r * ar[i];
+  // The box as the tree's root had it: the vertices' box grown by the fat margin.
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  double lo[3] = {kInf, kInf, kInf}, hi[3] = {-kInf, -kInf, -kInf};
+  for (std::size_t i = 0; i < n; ++i) {
+    x[i] = x0[i] + c * ac[i] + r * ar[i];
+    const double* v = x[i].data();
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = v[a] < lo[a] ? v[a] : lo[a];
+      hi[a] = v[a] > hi[a] ? v[a] : hi[a];
+    }
+  }
   p.mesh.recompute_normals();
-  p.tree.refit(p.mesh);
-  p.box = p.tree.nodes().front().box;
+  const Vec3 m = Vec3::Constant(margin_);
+  p.box = {Vec3(lo[0], lo[1], lo[2]) - m, Vec3(hi[0], hi[1], hi[2]) + m};
   p.time = t;
 }
 
@@ -476,7 +504,8 @@ void BeatingLumen::query_spheres(std::span<const Vec3> centres, std::span<const 
     // side, with the pseudo-normal of every patch it belongs to (a seam vertex or edge).
     SphereContactMerge merge;
     auto consider = [&](const Patch& p) {
-      const SphereContact sc = p.tree.query_sphere(p.mesh, centres[i], rad, settings);
+      const SphereContact sc = p.moving ? query_sphere_each(p.mesh, centres[i], rad, settings)
+                                        : p.tree.query_sphere(p.mesh, centres[i], rad, settings);
       if (sc.triangle >= 0) merge.add(sc, p.global_triangle[sc.triangle]);
     };
     if (!static_.global_triangle.empty()) {
@@ -535,7 +564,7 @@ void BeatingLumen::move_and_query(double t, std::span<const Vec3> centres,
         if (!overlaps(box_at(p, c, r), centres[i], rad)) return;
         if (p.time != t) move_patch(p, c, r, t);
         if (!overlaps(p.box, centres[i], rad)) return;
-        const SphereContact sc = p.tree.query_sphere(p.mesh, centres[i], rad);
+        const SphereContact sc = query_sphere_each(p.mesh, centres[i], rad);
         if (sc.triangle >= 0) merge.add(sc, p.global_triangle[sc.triangle]);
       });
     }

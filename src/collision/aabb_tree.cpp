@@ -440,6 +440,35 @@ SphereContact AabbTree::query_sphere(const TriangleMesh& mesh, const Vec3& centr
   return finish(mesh, acc, centre, radius);
 }
 
+std::vector<int> AabbTree::visit_order() const {
+  std::vector<int> out;
+  out.reserve(order_.size());
+  if (nodes_.empty()) return out;
+  // query_sphere's traversal with every box reached: children pushed left then right.
+  std::vector<int> stack{0};
+  while (!stack.empty()) {
+    const AabbNode& node = nodes_[stack.back()];
+    stack.pop_back();
+    if (node.is_leaf()) {
+      for (int k = node.first; k < node.first + node.count; ++k) out.push_back(order_[k]);
+      continue;
+    }
+    stack.push_back(node.first);
+    stack.push_back(node.first + 1);
+  }
+  return out;
+}
+
+SphereContact query_sphere_each(const TriangleMesh& mesh, const Vec3& centre, double radius,
+                                const SphereQuerySettings& settings) {
+  const double search = radius + settings.escape_distance;
+  const double search2 = search * search;
+  Accumulator acc;
+  const int n = mesh.num_triangles();
+  for (int t = 0; t < n; ++t) test_triangle(mesh, t, centre, radius, search2, acc);
+  return finish(mesh, acc, centre, radius);
+}
+
 void SphereContactMerge::add(const SphereContact& part, int triangle) {
   if (part.triangle < 0) return;  // nothing of this part within reach
   const double d = part.distance;

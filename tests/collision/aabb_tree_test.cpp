@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <random>
 
@@ -267,6 +268,49 @@ TEST(AabbTree, LeafCacheQueriesEqualFullQueries) {
   EXPECT_GT(reused, 1000);
   EXPECT_GT(refilled, 500);
   EXPECT_GT(touching, 1000);  // the walk does meet the wall
+}
+
+// A mesh stored in its tree's visit order answers query_sphere_each (every triangle, no tree)
+// exactly as the tree answers: the same contact, normal and sums to the last bit, so that a
+// beating wall's small patches can skip the tree and its refit.
+TEST(AabbTree, QueriesWithoutTheTreeInItsVisitOrderAreTheTrees) {
+  BenchTube t;
+  const std::vector<int> order = t.tree.visit_order();
+  ASSERT_EQ(static_cast<int>(order.size()), t.m.num_triangles());
+  std::vector<int> seen(order.size(), 0);
+  for (int k : order) ++seen[k];
+  EXPECT_EQ(std::count(seen.begin(), seen.end(), 1), static_cast<long>(order.size()));
+  TriangleMesh sorted = t.m;
+  for (std::size_t k = 0; k < order.size(); ++k) sorted.triangles[k] = t.m.triangles[order[k]];
+  sorted.recompute_normals();
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  int touching = 0, outside = 0;
+  for (int i = 0; i < 3000; ++i) {
+    // Around the wall of the straight part (at 3 mm), behind it, and along the bend.
+    const double a = 3.14159 * u(rng);
+    const double r = 2.8e-3 + 0.8e-3 * u(rng);
+    const Vec3 c(r * std::cos(a), r * std::sin(a), 20e-3 * (1.0 + u(rng)));
+    const double radius = 0.45e-3 + 0.2e-3 * u(rng);
+    SphereQuerySettings settings;
+    settings.escape_distance = i % 2 ? 1e-3 : 0.0;
+    const SphereContact x = t.tree.query_sphere(t.m, c, radius, settings);
+    const SphereContact y = query_sphere_each(sorted, c, radius, settings);
+    ASSERT_EQ(y.touching, x.touching) << "sphere " << i;
+    EXPECT_EQ(y.centre_outside, x.centre_outside);
+    EXPECT_EQ(y.depth, x.depth);
+    EXPECT_EQ(y.distance, x.distance);
+    EXPECT_EQ(y.normal, x.normal);
+    EXPECT_EQ(y.normal_sum, x.normal_sum);
+    EXPECT_EQ(y.side_sum, x.side_sum);
+    EXPECT_EQ(y.weight_sum, x.weight_sum);
+    EXPECT_EQ(y.num_touching, x.num_touching);
+    EXPECT_EQ(y.triangle < 0 ? -1 : order[y.triangle], x.triangle) << "sphere " << i;
+    touching += x.touching;
+    outside += x.centre_outside;
+  }
+  EXPECT_GT(touching, 500);
+  EXPECT_GT(outside, 100);
 }
 
 // A static wall's tree without the fat margin answers exactly as the default tree, bit for bit,
