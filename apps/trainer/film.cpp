@@ -65,11 +65,11 @@ bool SessionFilm::due(double time, bool key) const {
   return key || frames_.empty() || time >= frames_.back().time + kEvery - 1e-9;
 }
 
-void SessionFilm::keep(std::span<const std::uint8_t> image, double time, const Vec3& isocentre) {
+void SessionFilm::keep(std::span<const std::uint8_t> image, double time, const CArmPose& pose) {
   // The same state shown again (a held image kept twice): one frame is enough.
   if (!frames_.empty() && time <= frames_.back().time + 1e-12) return;
   const int file = next_file_++;
-  frames_.push_back({time, isocentre, file});
+  frames_.push_back({time, pose, file});
   Job job{file, std::vector<std::uint8_t>(image.begin(), image.end())};
   std::unique_lock lock(m_);
   cv_.wait(lock, [&] { return queue_.size() < kQueue; });
@@ -85,7 +85,7 @@ void SessionFilm::rewound(double time) {
   }
 }
 
-void SessionFilm::finish(std::vector<double>& times, std::vector<Vec3>& isocentres) {
+void SessionFilm::finish(std::vector<double>& times, std::vector<CArmPose>& poses) {
   {
     std::unique_lock lock(m_);
     cv_.wait(lock, [&] { return queue_.empty() && !busy_; });
@@ -96,7 +96,7 @@ void SessionFilm::finish(std::vector<double>& times, std::vector<Vec3>& isocentr
   // Files were numbered in the order kept; the survivors keep that order, so renaming each to
   // its place (never above its number) overwrites nothing still to be renamed.
   times.clear();
-  isocentres.clear();
+  poses.clear();
   for (std::size_t k = 0; k < frames_.size(); ++k) {
     Frame& fr = frames_[k];
     const int want = static_cast<int>(k);
@@ -105,7 +105,7 @@ void SessionFilm::finish(std::vector<double>& times, std::vector<Vec3>& isocentr
       fr.file = want;
     }
     times.push_back(fr.time);
-    isocentres.push_back(fr.isocentre);
+    poses.push_back(fr.pose);
   }
   next_file_ = static_cast<int>(frames_.size());
 }

@@ -1,7 +1,7 @@
 // The session's film (internal to apps/trainer): the fluoroscopy images the window displayed,
 // kept at a modest rate so that the session report (docs/assessment.md) can show key frames.
 // Written as DIR/frames/frame_%05d.png by a worker thread (PNG encoding off the window's thread)
-// with each frame's simulated time and table pan for DIR/frames.csv, in the format of `vcsim
+// with each frame's simulated time and C-arm pose for DIR/frames.csv, in the format of `vcsim
 // run`'s film. At most kQueue images wait in memory; the rest are on disk.
 #pragma once
 
@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "vcsim/core.h"
+#include "vcsim/render.h"
 
 namespace vcsim::trainer {
 
@@ -36,16 +37,17 @@ class SessionFilm {
   // True when an image shown at simulated time `time` (s) is to be kept: kEvery after the last
   // kept, or at once when `key` (a key moment: an assessment event, an injection's end...).
   bool due(double time, bool key) const;
-  // Keeps a copy of `image` (row 0 at the top), shown at `time` (s) with the table's isocentre
-  // `isocentre` (m). Waits only while kQueue images wait for the writer.
-  void keep(std::span<const std::uint8_t> image, double time, const Vec3& isocentre);
+  // Keeps a copy of `image` (row 0 at the top), shown at `time` (s) through the C-arm `pose`
+  // (angles, field and the table's pan as the trainee had them). Waits only while kQueue images
+  // wait for the writer.
+  void keep(std::span<const std::uint8_t> image, double time, const CArmPose& pose);
   // The state went back to `time` (a rewind, a restart): the frames after it are dropped (their
   // files removed by finish()), so that the film is of the steps that led to the final state.
   void rewound(double time);
   // Waits for the writer, removes the dropped frames' files and numbers the rest in order of
-  // time (frame_00000.png...). Returns the frames' times (s) and isocentres (m), one per file.
+  // time (frame_00000.png...). Returns the frames' times (s) and C-arm poses, one per file.
   // Throws what the writer threw (a PNG that could not be written).
-  void finish(std::vector<double>& times, std::vector<Vec3>& isocentres);
+  void finish(std::vector<double>& times, std::vector<CArmPose>& poses);
 
   int kept() const { return static_cast<int>(frames_.size()); }  // frames kept (not dropped)
   double last_time() const { return frames_.empty() ? -1.0 : frames_.back().time; }
@@ -53,7 +55,7 @@ class SessionFilm {
  private:
   struct Frame {
     double time;
-    Vec3 isocentre;
+    CArmPose pose;
     int file;  // index in the writer's numbering
   };
   struct Job {

@@ -249,7 +249,7 @@ void Viewer::render_xray() {
   have_image_ = true;
   drew_ = true;
   shown_time_ = view_.time;
-  shown_isocentre_ = pose.isocentre;
+  shown_pose_ = pose;
   drawn_version_ = view_.version;
   if (cine) {
     if (!cine_open_) {
@@ -279,13 +279,13 @@ void Viewer::film() {
   film_pressure_ = view_.balloon_pressure;
   if (drew_) {
     shown_filmed_ = film_->due(shown_time_, film_key_);
-    if (shown_filmed_) film_->keep(image_, shown_time_, shown_isocentre_);
+    if (shown_filmed_) film_->keep(image_, shown_time_, shown_pose_);
     film_key_ = false;
   } else if (!xray_now_) {
     // The beam is off: the image held on screen (last image hold) is the last one shown, and
     // what a key moment now shows (unless a rewind has since taken its steps back).
     if (have_image_ && !shown_filmed_ && shown_time_ <= view_.time)
-      film_->keep(image_, shown_time_, shown_isocentre_);
+      film_->keep(image_, shown_time_, shown_pose_);
     shown_filmed_ = true;
     film_key_ = false;
   }
@@ -591,22 +591,22 @@ void Viewer::finish() {
     }
     // The film: the image on screen at the end too, then every image on disk, in order.
     std::vector<double> film_times;
-    std::vector<Vec3> film_isocentres;
+    std::vector<CArmPose> film_poses;
     if (film_) {
       try {
         if (have_image_ && !shown_filmed_ && shown_time_ <= view_.time)
-          film_->keep(image_, shown_time_, shown_isocentre_);
-        film_->finish(film_times, film_isocentres);
+          film_->keep(image_, shown_time_, shown_pose_);
+        film_->finish(film_times, film_poses);
       } catch (const std::exception& e) {  // the session is saved; its report has no key frames
         std::cerr << "trainer: frames not written: " << e.what() << "\n";
         film_times.clear();
-        film_isocentres.clear();
+        film_poses.clear();
       }
     }
     const fs::path metrics = o_.out / "metrics.json";
     write_run_metrics(metrics, sim, report);
     // The session's assessment (docs/assessment.md), and frames.csv of the film.
-    physics_.assessment().write(o_.out, sim, film_isocentres, film_times);
+    physics_.assessment().write(o_.out, sim, film_poses, film_times);
     // The trainer's own figures beside the run's (the assessment reads both).
     nlohmann::json j;
     {

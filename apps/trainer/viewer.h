@@ -151,7 +151,7 @@ class Viewer {
   double film_pressure_ = 0.0;  // the balloon pressure (Pa) when last looked at
   bool shown_filmed_ = true;    // the image on screen is in the film
   double shown_time_ = 0.0;     // s simulated, of the image on screen
-  Vec3 shown_isocentre_ = Vec3::Zero();
+  CArmPose shown_pose_;         // the C-arm the image on screen was made through
   // Cine: runs recorded while the cine pedal is held, at 15 frames per simulated second.
   std::vector<CineRun> cine_;
   bool cine_open_ = false;

@@ -276,7 +276,7 @@ int cmd_run(const RunOptions& o) {
   const fs::path metrics = out / "metrics.json";
   write_run_metrics(metrics, sim, report);
   assessment.write(out, sim,
-                   film ? std::span<const Vec3>(film->isocentres()) : std::span<const Vec3>());
+                   film ? std::span<const CArmPose>(film->poses()) : std::span<const CArmPose>());
   if (commands) commands->finish(sim).save(o.record);
   print_run_summary(std::cout, sim, report, frames_dir, metrics);
   if (o.profile)

@@ -20,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "vcsim/render.h"
 #include "vcsim/sim.h"
 #include "vcsim/units.h"
 
@@ -150,12 +151,12 @@ class Assessment : public RunObserver {
   int num_events() const;
 
   // Adds "assessment" to DIR/metrics.json (written before by write_run_metrics), writes
-  // DIR/series.csv and, with frames, DIR/frames.csv (frame index, time, the table's pan:
-  // `frame_isocentres`, m, one per frame in order; `frame_times`, s, each frame's simulated
-  // time, or empty: frames at the scenario's fps from 0, as `vcsim run` films). InputError naming
-  // the file when it cannot.
+  // DIR/series.csv and, with frames, DIR/frames.csv (frame index, time and the C-arm pose each
+  // was made through: `frame_poses`, one per frame in order; `frame_times`, s, each frame's
+  // simulated time, or empty: frames at the scenario's fps from 0, as `vcsim run` films).
+  // InputError naming the file when it cannot.
   void write(const std::filesystem::path& dir, const Simulator& sim,
-             std::span<const Vec3> frame_isocentres = {},
+             std::span<const CArmPose> frame_poses = {},
              std::span<const double> frame_times = {}) const;
 
  private:

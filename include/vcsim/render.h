@@ -438,9 +438,9 @@ class RunFilm : public RunObserver {
  public:
   RunFilm(const SimModel& model, FrameRecorder& recorder);
   void after_step(const Simulator& sim) override;
-  // The table's pan of each frame filmed so far, in order: the pose's isocentre (m, LPS); the
-  // other pose values are the scenario's (scenario_pose).
-  const std::vector<Vec3>& isocentres() const { return isocentres_; }
+  // The C-arm pose of each frame filmed so far, in order (the scenario's angles and field, the
+  // table's pan in the isocentre).
+  const std::vector<CArmPose>& poses() const { return poses_; }
 
  private:
   FrameRecorder& recorder_;
@@ -449,7 +449,7 @@ class RunFilm : public RunObserver {
   double frame_dt_;
   bool follow_tip_;
   double next_frame_ = 0.0;
-  std::vector<Vec3> isocentres_;
+  std::vector<CArmPose> poses_;
 };
 
 }  // namespace vcsim

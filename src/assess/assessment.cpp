@@ -567,9 +567,9 @@ double round_to(double v, double q) {
 }  // namespace
 
 void Assessment::write(const fs::path& dir, const Simulator& sim,
-                       std::span<const Vec3> frame_isocentres,
+                       std::span<const CArmPose> frame_poses,
                        std::span<const double> frame_times) const {
-  assert(frame_times.empty() || frame_times.size() == frame_isocentres.size());
+  assert(frame_times.empty() || frame_times.size() == frame_poses.size());
   const Impl& p = *p_;
   const AssessmentSettings& set = p.set;
   const Scenario& sc = sim.scenario();
@@ -741,7 +741,8 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
   for (const Mark& m : sorted)
     marks.push_back({{"time_s", m.time}, {"what", m.what}, {"instrument", m.instrument}});
   a["events"] = marks;
-  // The fluoroscopy view the frames were filmed in (the table pan of each frame: frames.csv).
+  // The scenario's fluoroscopy view (each frame's own pose, which a trainee may have changed:
+  // frames.csv).
   a["view"] = {{"primary_deg", pose.primary_deg},
                {"secondary_deg", pose.secondary_deg},
                {"sid_mm", pose.sid * 1e3},
@@ -749,7 +750,7 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
                {"fov_mm", pose.fov * 1e3},
                {"size_px", sc.fluoro.size},
                {"fps", sc.fluoro.fps},
-               {"frames", frame_isocentres.size()}};
+               {"frames", frame_poses.size()}};
   // The scalars a spreadsheet or a comparison reads (docs/assessment.md, "summary").
   int reached = 0;
   for (const Json& l : landmarks) reached += l.value("reached", false) ? 1 : 0;
@@ -795,7 +796,7 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
          {"depth_mm", "force_n", "tip_wall_force_n", "tip_x_mm", "tip_y_mm", "tip_z_mm"})
       s << ',' << tr.name << '_' << col;
   s << '\n';
-  char buf[64];
+  char buf[128];
   auto put = [&](float v, const char* fmt) {
     if (std::isfinite(v)) {
       std::snprintf(buf, sizeof buf, fmt, static_cast<double>(v));
@@ -826,22 +827,25 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
     s << '\n';
   }
   if (!s) throw InputError(series_file.string(), "file", "expected a writable file");
-  // frames.csv: each frame's time and table pan
-  if (!frame_isocentres.empty()) {
+  // frames.csv: each frame's time and C-arm pose (table pan, angles, distances, field)
+  if (!frame_poses.empty()) {
     const fs::path frames_file = dir / "frames.csv";
     std::ofstream f(frames_file);
-    f << "frame,time_s,isocentre_x_mm,isocentre_y_mm,isocentre_z_mm\n";
+    f << "frame,time_s,isocentre_x_mm,isocentre_y_mm,isocentre_z_mm,primary_deg,secondary_deg,"
+         "sid_mm,sod_mm,fov_mm\n";
     const double frame_dt = 1.0 / sc.fluoro.fps;
-    for (std::size_t k = 0; k < frame_isocentres.size(); ++k) {
-      const Vec3& c = frame_isocentres[k];
+    for (std::size_t k = 0; k < frame_poses.size(); ++k) {
+      const CArmPose& fp = frame_poses[k];
       const double t = k < frame_times.size() ? frame_times[k] : static_cast<double>(k) * frame_dt;
       std::snprintf(buf, sizeof buf, "%.4f", round_to(t, 1e-4));
       f << k << ',' << buf;
       for (int d = 0; d < 3; ++d) {
-        std::snprintf(buf, sizeof buf, ",%.3f", c[d] * 1e3);
+        std::snprintf(buf, sizeof buf, ",%.3f", fp.isocentre[d] * 1e3);
         f << buf;
       }
-      f << '\n';
+      std::snprintf(buf, sizeof buf, ",%.3f,%.3f,%.3f,%.3f,%.3f", fp.primary_deg, fp.secondary_deg,
+                    fp.sid * 1e3, fp.sod * 1e3, fp.fov * 1e3);
+      f << buf << '\n';
     }
     if (!f) throw InputError(frames_file.string(), "file", "expected a writable file");
   }

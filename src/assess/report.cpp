@@ -394,7 +394,8 @@ std::string timeline_svg(const Json& a, double end, std::vector<std::string>& ro
 }
 
 // The tips' paths (series.csv, rest anatomy) over an angiogram frame, projected through the
-// frame's C-arm pose.
+// frame's C-arm pose: its own angles, distances and field where frames.csv has them (a trainee
+// may have turned or zoomed the C-arm), else the scenario's (the view) with the frame's pan.
 std::string path_svg(const Run& run, const Series& series, const Series* frames, int frame,
                      std::string& caption) {
   const Json& v = (*run.a)["view"];
@@ -409,6 +410,13 @@ std::string path_svg(const Run& run, const Series& series, const Series* frames,
   if (frames && frame >= 0) {
     const auto& row = frames->rows[static_cast<std::size_t>(frame)];
     pose.isocentre = Vec3(row[2], row[3], row[4]) * 1e-3;
+    if (row.size() >= 10) {
+      pose.primary_deg = row[5];
+      pose.secondary_deg = row[6];
+      pose.sid = row[7] * 1e-3;
+      pose.sod = row[8] * 1e-3;
+      pose.fov = row[9] * 1e-3;
+    }
     const fs::path f = frame_file(run.dir, frame);
     if (fs::exists(f)) image = "data:image/png;base64," + base64(slurp(f, "a frame"));
   }
@@ -555,9 +563,29 @@ fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const Re
   std::optional<Series> frames;
   if (fs::exists(run_dir / "frames.csv")) {
     frames = read_csv(run_dir / "frames.csv", "frames.csv");
-    if (frames->columns.size() != 5)
+    // Runs written before the poses were recorded have the pan only.
+    if (frames->columns.size() != 5 && frames->columns.size() != 10)
       throw InputError((run_dir / "frames.csv").string(), "line 1",
-                       "expected frame, time and the isocentre's three coordinates");
+                       "expected frame, time, the isocentre's three coordinates and the C-arm's "
+                       "primary and secondary angles, sid, sod and field (or the pan alone)");
+    if (frames->columns.size() == 10) {
+      // A pose the C-arm cannot take would project the paths nowhere.
+      for (std::size_t k = 0; k < frames->rows.size(); ++k) {
+        const auto& row = frames->rows[k];
+        const std::string where = (run_dir / "frames.csv").string() + " frame " + std::to_string(k);
+        for (std::size_t c = 2; c < row.size(); ++c)
+          if (!std::isfinite(row[c]))
+            throw InputError(where, frames->columns[c], "expected a number");
+        CArmPose pose;
+        pose.isocentre = Vec3(row[2], row[3], row[4]) * 1e-3;
+        pose.primary_deg = row[5];
+        pose.secondary_deg = row[6];
+        pose.sid = row[7] * 1e-3;
+        pose.sod = row[8] * 1e-3;
+        pose.fov = row[9] * 1e-3;
+        pose.validate(where);
+      }
+    }
   }
   const double end = num(a, "procedure_time_s", num(m, "sim_time_s", 0));
   const fs::path tmpl_file = o.template_file.empty() ? default_report_template() : o.template_file;

@@ -177,7 +177,7 @@ void RunFilm::after_step(const Simulator& sim) {
     if ((want - pose_.isocentre).norm() > 0.3 * pose_.fov) pose_.isocentre = want;
   }
   recorder_.push(snapshot(sim), pose_);
-  isocentres_.push_back(pose_.isocentre);
+  poses_.push_back(pose_);
   next_frame_ += frame_dt_;
 }
 

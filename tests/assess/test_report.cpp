@@ -8,7 +8,9 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <sstream>
 #include <string>
+#include <vector>
 
 #include "../common/cli_runner.h"
 
@@ -234,6 +236,68 @@ TEST(ReportCli, BadRunFoldersAreRefusedWithExitStatusTwo) {
   expect_refused("report compare " + run.string() + " " + (d / "empty").string(),
                  "metrics.json: expected a run folder");
   expect_refused("report csv " + (d / "v1").string(), "format: expected \"vcsim-metrics\"");
+}
+
+// frames.csv with column `col` of every frame set to `value` (`col` < 0: the first five columns
+// only, as runs wrote it before the poses were recorded).
+std::string frames_with(const std::string& csv, int col, const std::string& value) {
+  std::istringstream in(csv);
+  std::ostringstream out;
+  std::string line;
+  for (int n = 0; std::getline(in, line); ++n) {
+    std::vector<std::string> cells;
+    std::stringstream ss(line);
+    for (std::string c; std::getline(ss, c, ',');) cells.push_back(c);
+    if (col < 0) cells.resize(5);
+    if (col >= 0 && n > 0) cells.at(static_cast<std::size_t>(col)) = value;
+    for (std::size_t k = 0; k < cells.size(); ++k) out << (k ? "," : "") << cells[k];
+    out << '\n';
+  }
+  return out.str();
+}
+
+// The points of the report's tip path (the angiogram's overlay).
+std::string path_points(const fs::path& html_file) {
+  const std::string html = slurp(html_file);
+  const std::size_t a = html.find("<polyline");
+  EXPECT_NE(a, std::string::npos);
+  const std::size_t p = html.find("points='", a);
+  EXPECT_NE(p, std::string::npos);
+  if (a == std::string::npos || p == std::string::npos) return {};
+  return html.substr(p + 8, html.find('\'', p + 8) - p - 8);
+}
+
+// A trainee turns and zooms the C-arm: each frame keeps the pose it was made through, and the
+// report draws the tip's path over a frame through that frame's pose. A run written before the
+// poses were recorded (the pan alone) is still read; a pose the C-arm cannot take is refused.
+TEST(ReportCli, TheTipPathIsDrawnThroughTheFramesOwnCArmPose) {
+  const fs::path run = make_run("pose");
+  const std::string csv = slurp(run / "frames.csv");
+  EXPECT_EQ(csv.substr(0, csv.find('\n')),
+            "frame,time_s,isocentre_x_mm,isocentre_y_mm,isocentre_z_mm,primary_deg,secondary_deg,"
+            "sid_mm,sod_mm,fov_mm");
+  // The scenario's field (250 mm) in every frame.
+  EXPECT_EQ(frames_with(csv, 9, "250.000"), csv);
+  auto report = [&](const std::string& frames, const std::string& name) {
+    write(run / "frames.csv", frames);
+    const CliResult r = run_cli("report " + run.string() + " --out " + (run / name).string());
+    EXPECT_EQ(r.status, 0) << r.err;
+    return path_points(run / name);
+  };
+  const std::string as_run = report(csv, "as_run.html");
+  ASSERT_FALSE(as_run.empty());
+  EXPECT_EQ(report(frames_with(csv, -1, ""), "pan_only.html"), as_run);
+  const std::string lao = report(frames_with(csv, 5, "60.000"), "lao.html");
+  const std::string zoomed = report(frames_with(csv, 9, "120.000"), "zoomed.html");
+  EXPECT_NE(lao, as_run);
+  EXPECT_NE(zoomed, as_run);
+  EXPECT_NE(zoomed, lao);
+  write(run / "frames.csv", frames_with(csv, 5, "500"));
+  expect_refused("report " + run.string() + " --out " + (run / "bad.html").string(),
+                 "frames.csv frame 0: primary_deg");
+  write(run / "frames.csv", frames_with(csv, 7, ""));
+  expect_refused("report " + run.string() + " --out " + (run / "bad.html").string(),
+                 "frames.csv frame 0: sid_mm: expected a number");
 }
 
 }  // namespace

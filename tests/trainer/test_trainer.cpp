@@ -19,6 +19,7 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -207,7 +208,13 @@ TEST(TrainerFilm, KeepsOneImageASecondAndKeyMomentsAndGoesBackWithARewind) {
                                      static_cast<std::uint8_t>(shade));
   };
   std::vector<double> times;
-  std::vector<Vec3> isos;
+  std::vector<CArmPose> poses;
+  auto pose = [](const Vec3& pan, double primary_deg = 0.0) {
+    CArmPose p;
+    p.isocentre = pan;
+    p.primary_deg = primary_deg;
+    return p;
+  };
   {
     trainer::SessionFilm film(dir, n);
     EXPECT_FALSE(fs::exists(dir / "frame_00007.png"));
@@ -215,23 +222,25 @@ TEST(TrainerFilm, KeepsOneImageASecondAndKeyMomentsAndGoesBackWithARewind) {
     // 1.4 s, and at 2.4 s (a second after it).
     for (int k = 0; k <= 30; ++k) {
       const double t = 0.1 * k;
-      if (film.due(t, k == 14)) film.keep(image(k), t, Vec3(0.001 * k, 0, 0));
+      if (film.due(t, k == 14)) film.keep(image(k), t, pose(Vec3(0.001 * k, 0, 0), 2.0 * k));
     }
     EXPECT_EQ(film.kept(), 4);
     EXPECT_NEAR(film.last_time(), 2.4, 1e-9);
-    film.keep(image(99), 2.4, Vec3::Zero());  // the same state shown again: kept once
+    film.keep(image(99), 2.4, pose(Vec3::Zero()));  // the same state shown again: kept once
     EXPECT_EQ(film.kept(), 4);
     film.rewound(1.2);  // the state back at 1.2 s: 1.4 and 2.4 dropped
     EXPECT_EQ(film.kept(), 2);
-    film.keep(image(200), 1.3, Vec3(0, 0.002, 0));
-    film.finish(times, isos);
+    film.keep(image(200), 1.3, pose(Vec3(0, 0.002, 0), -30.0));
+    film.finish(times, poses);
   }
   ASSERT_EQ(times.size(), 3u);
   EXPECT_NEAR(times[0], 0.0, 1e-9);
   EXPECT_NEAR(times[1], 1.0, 1e-9);
   EXPECT_NEAR(times[2], 1.3, 1e-9);
-  EXPECT_NEAR(isos[1].x(), 0.010, 1e-12);
-  EXPECT_NEAR(isos[2].y(), 0.002, 1e-12);
+  EXPECT_NEAR(poses[1].isocentre.x(), 0.010, 1e-12);
+  EXPECT_NEAR(poses[2].isocentre.y(), 0.002, 1e-12);
+  EXPECT_EQ(poses[1].primary_deg, 20.0);  // each frame keeps the C-arm it was made through
+  EXPECT_EQ(poses[2].primary_deg, -30.0);
   for (std::size_t k = 0; k < times.size(); ++k) {
     char name[32];
     std::snprintf(name, sizeof name, "frame_%05zu.png", k);
@@ -450,12 +459,19 @@ TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameSta
   std::istringstream lines(csv);
   std::string line;
   std::getline(lines, line);
-  EXPECT_EQ(line, "frame,time_s,isocentre_x_mm,isocentre_y_mm,isocentre_z_mm");
+  EXPECT_EQ(line,
+            "frame,time_s,isocentre_x_mm,isocentre_y_mm,isocentre_z_mm,primary_deg,secondary_deg,"
+            "sid_mm,sod_mm,fov_mm");
   std::vector<double> times;
+  std::set<std::pair<double, double>> angles;  // the C-arm's (primary, secondary) of the frames
   while (std::getline(lines, line)) {
     int k = -1;
-    double t = 0, x = 0, y = 0, z = 0;
-    ASSERT_EQ(std::sscanf(line.c_str(), "%d,%lf,%lf,%lf,%lf", &k, &t, &x, &y, &z), 5) << line;
+    double t = 0, x = 0, y = 0, z = 0, pa = 0, sa = 0, sid = 0, sod = 0, fov = 0;
+    ASSERT_EQ(std::sscanf(line.c_str(), "%d,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf,%lf", &k, &t, &x, &y,
+                          &z, &pa, &sa, &sid, &sod, &fov),
+              10)
+        << line;
+    angles.insert({pa, sa});
     EXPECT_EQ(k, static_cast<int>(times.size()));
     if (!times.empty()) {
       EXPECT_GT(t, times.back());
@@ -466,6 +482,9 @@ TEST(TrainerApp, AScriptedSessionDrivesTheWireAndItsRecordingReplaysToTheSameSta
     times.push_back(t);
   }
   EXPECT_EQ(static_cast<int>(times.size()), filmed);
+  // The film kept the views the trainee turned to: the oblique one and AP at the end.
+  EXPECT_GE(angles.size(), 2u);
+  EXPECT_EQ(angles.count({0.0, 0.0}), 1u);
   // A key moment: the image shown when the injection ended (the angiograms the report picks).
   ASSERT_FALSE(m["assessment"]["contrast"]["injections"].empty());
   const double injected = m["assessment"]["contrast"]["injections"][0]["end_s"].get<double>();
