@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "vcsim/render.h"
@@ -56,6 +57,11 @@ struct AssessmentSettings {
   // from the way into the coronary it is in (its tip folded back).
   double prolapse_length = 3e-3;         // m
   double prolapse_angle = 120.0 * kDeg;  // rad
+  // A loop, anywhere: an instrument come back onto itself, two of its inserted points at least
+  // loop_arc apart along it within loop_gap of touching (find_loop), checked every loop_interval.
+  double loop_arc = 30e-3;       // m
+  double loop_gap = 0.5e-3;      // m
+  double loop_interval = 20e-3;  // s
   // Tips are located in the vessel tree every location_interval (as landmarks are); the time
   // series keeps one row per series_interval (forces: the largest magnitude within it).
   double location_interval = 5e-3;  // s
@@ -117,6 +123,15 @@ double coronary_depth(const VesselTree& tree, const TreeLocation& loc);
 // True when a wire's distal direction (unit, toward its tip) points more than `angle` (rad) away
 // from `way_in` (unit, the vessel's direction away from the ostium at the tip).
 bool prolapsed(const Vec3& tip_direction, const Vec3& way_in, double angle);
+
+// A loop of a rod: two of its nodes from `first` on, at least `arc` apart along it (`node_s`, m),
+// with their surfaces closer than `gap` (m; each node's radius that of the edge after it, the
+// last edge's at the tip: `edge_radius`, one per edge). Returns the first such pair (i < j) found,
+// or (-1, -1). Skips ahead by the distance a pair is from touching, so a rod far from itself costs
+// a few distance checks a node.
+std::pair<int, int> find_loop(std::span<const Vec3> x, std::span<const double> node_s,
+                              std::span<const double> edge_radius, int first, double arc,
+                              double gap);
 
 // The segments a tip may be in on the way from the access to the treatment target: the access'
 // and the target's segments and all their ancestors, and the aortic sinuses (where a guide seeks

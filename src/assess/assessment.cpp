@@ -92,6 +92,36 @@ bool prolapsed(const Vec3& tip_direction, const Vec3& way_in, double angle) {
   return tip_direction.dot(way_in) < std::cos(angle);
 }
 
+std::pair<int, int> find_loop(std::span<const Vec3> x, std::span<const double> node_s,
+                              std::span<const double> edge_radius, int first, double arc,
+                              double gap) {
+  const int n = static_cast<int>(x.size());
+  const int m = static_cast<int>(edge_radius.size());
+  if (n < 2 || m < 1 || first < 0 || first >= n) return {-1, -1};
+  auto radius = [&](int i) { return edge_radius[static_cast<std::size_t>(std::min(i, m - 1))]; };
+  // The longest step between neighbours and the thickest node bound how fast the distance to a
+  // node can fall along the rod.
+  double step = 0.0, r_max = 0.0;
+  for (int i = first; i < n; ++i) {
+    r_max = std::max(r_max, radius(i));
+    if (i + 1 < n) step = std::max(step, (x[i + 1] - x[i]).norm());
+  }
+  if (!(step > 0.0)) return {-1, -1};
+  for (int i = first; i < n; ++i) {
+    int j = i + 1;
+    while (j < n && node_s[j] - node_s[i] < arc) ++j;
+    const double reach = radius(i) + r_max + gap;
+    while (j < n) {
+      const double d = (x[j] - x[i]).norm();
+      if (d < radius(i) + radius(j) + gap) return {i, j};
+      // Nodes within (d - reach) / step further along cannot be within reach.
+      const double skip = std::floor((d - reach) / step);
+      j += skip >= 1.0 ? static_cast<int>(std::min(skip, static_cast<double>(n))) + 1 : 1;
+    }
+  }
+  return {-1, -1};
+}
+
 std::vector<unsigned char> allowed_segments(const VesselTree& tree) {
   std::vector<unsigned char> ok;
   if (tree.target.segment < 0 || tree.access.segment < 0) return ok;
@@ -143,6 +173,10 @@ struct Track {
   bool deep = false, folded = false;
   int deep_count = 0, prolapse_count = 0;
   double deep_time = 0.0, prolapse_time = 0.0, max_depth = -1.0;
+  // Loops (any instrument, anywhere): episodes and their time
+  bool looped = false;
+  int loop_count = 0;
+  double loop_time = 0.0;
   // The series' current bin and its rows
   double bin_force = 0.0, bin_wall = 0.0;
   std::vector<float> depth_mm, force_n, wall_n, x_mm, y_mm, z_mm;
@@ -185,6 +219,7 @@ struct Assessment::Impl {
   int pilot_phase = -1;
   int exchanges = 0;
   double next_location = 0.0;
+  double next_loop = 0.0;
   double next_row = 0.0;
   // Series rows
   std::vector<float> row_t, beam_state, flow_ml_s, contrast_ml, fluoro_s, kerma_mgy;
@@ -477,6 +512,26 @@ void Assessment::after_step(const Simulator& sim) {
         }
     }
   }
+  // Loops, every loop_interval: the inserted part of each instrument come back onto itself
+  if (t >= p.next_loop - 1e-9) {
+    p.next_loop = t + set.loop_interval;
+    for (Track& tr : p.tracks) {
+      bool looped = false;
+      if (tr.index >= 0 && tr.inside) {
+        const InstrumentState& in = sim.instrument(tr.index);
+        const RodModel& rm = sim.rod_model(tr.index);
+        looped = !in.parked && find_loop(in.rod.x, rm.node_s, rm.outer_radius, in.drive.first_free,
+                                         set.loop_arc, set.loop_gap)
+                                       .first >= 0;
+      }
+      if (looped) tr.loop_time += set.loop_interval;
+      if (looped && !tr.looped) {
+        ++tr.loop_count;
+        p.marks.push_back({t, "loop", tr.name});
+      }
+      tr.looped = looped;
+    }
+  }
   // Procedure events (stent deployed, rupture, ...) as marks
   const auto& evs = sim.state().procedure.events;
   for (std::size_t k = p.procedure_events; k < evs.size(); ++k) {
@@ -606,6 +661,9 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
                    {"deep_intubation_mm", set.deep_intubation * 1e3},
                    {"prolapse_length_mm", set.prolapse_length * 1e3},
                    {"prolapse_angle_deg", set.prolapse_angle * 180.0 / kPi},
+                   {"loop_arc_mm", set.loop_arc * 1e3},
+                   {"loop_gap_mm", set.loop_gap * 1e3},
+                   {"loop_interval_s", set.loop_interval},
                    {"location_interval_s", set.location_interval},
                    {"series_interval_s", set.series_interval}};
   a["procedure_time_s"] = end;
@@ -625,7 +683,7 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
   a["contrast"] = {{"volume_ml", p.volume * 1e6}, {"injections", inj}};
   Json insts = Json::array();
   int events_wire = 0, events_catheter = 0, entries = 0, insertions = 0, disengagements = 0;
-  int deep_count = 0, prolapse_count = 0;
+  int deep_count = 0, prolapse_count = 0, loop_count = 0;
   double wrong_time = 0.0;
   for (const Track& tr : p.tracks) {
     Json ev = Json::array();
@@ -652,7 +710,9 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
               {"force_events", ev},
               {"wrong_branch_time_s", tr.wrong_time},
               {"wrong_branch_entries", tr.wrong_entries},
-              {"first_in_coronary_s", num_or_null(tr.first_coronary)}};
+              {"first_in_coronary_s", num_or_null(tr.first_coronary)},
+              {"loops", tr.loop_count},
+              {"loop_time_s", tr.loop_time}};
     if (tr.kind == InstrumentKind::kCatheter) {
       e["engaged_s"] = num_or_null(tr.engaged_at);
       e["disengagements"] = tr.disengagements;
@@ -666,6 +726,7 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
     }
     deep_count += tr.deep_count;
     prolapse_count += tr.prolapse_count;
+    loop_count += tr.loop_count;
     insts.push_back(e);
   }
   a["instruments"] = insts;
@@ -771,6 +832,7 @@ void Assessment::write(const fs::path& dir, const Simulator& sim,
                   {"guide_disengagements", disengagements},
                   {"deep_intubations", deep_count},
                   {"wire_prolapses", prolapse_count},
+                  {"instrument_loops", loop_count},
                   {"time_to_cross_s", num_or_null(time_to_cross)},
                   {"residual_stenosis_percent", num_or_null(residual)},
                   {"balloon_to_artery_ratio", num_or_null(ratio)},

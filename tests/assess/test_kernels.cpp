@@ -2,7 +2,10 @@
 // frames, threshold events, the dose model, the segments a tip may be in.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <utility>
+#include <vector>
 
 #include "vcsim/assess.h"
 
@@ -147,6 +150,64 @@ TEST(Prolapse, ATipPointingBackMoreThanTheAngleIsProlapsed) {
   EXPECT_FALSE(prolapsed(Vec3(std::sin(115 * kDeg), 0, std::cos(115 * kDeg)), in, a));
   EXPECT_TRUE(prolapsed(Vec3(std::sin(125 * kDeg), 0, std::cos(125 * kDeg)), in, a));
   EXPECT_TRUE(prolapsed(-in, in, a));
+}
+
+// Polylines with nodes every 1 mm (0.45 mm radius, a 0.035" wire) that do and do not come back
+// onto themselves.
+struct Line {
+  std::vector<Vec3> x;
+  std::vector<double> s, r;
+  void add(const Vec3& p) {
+    s.push_back(x.empty() ? 0.0 : s.back() + (p - x.back()).norm());
+    x.push_back(p);
+    if (x.size() > 1) r.push_back(0.45e-3);
+  }
+  std::pair<int, int> loop(int first = 0) const { return find_loop(x, s, r, first, 30e-3, 0.5e-3); }
+};
+
+// A U-turn of radius `bend` between two straight limbs of `limb` m.
+Line hairpin(double bend, double limb) {
+  Line l;
+  for (double z = 0; z <= limb; z += 1e-3) l.add(Vec3(-bend, 0, z));
+  const int k = std::max(4, static_cast<int>(kPi * bend / 1e-3));
+  for (int i = 1; i <= k; ++i) {
+    const double a = kPi - kPi * i / k;
+    l.add(Vec3(bend * std::cos(a), 0, limb + bend * std::sin(a)));
+  }
+  for (double z = limb - 1e-3; z >= 0; z -= 1e-3) l.add(Vec3(bend, 0, z));
+  return l;
+}
+
+TEST(Loop, AnInstrumentBackOnItselfIsALoopABendIsNot) {
+  Line straight;
+  for (int i = 0; i < 200; ++i) straight.add(Vec3(0, 0, 1e-3 * i));
+  EXPECT_EQ(straight.loop().first, -1);
+  // A ring of 60 mm and on: the wire crosses itself where the ring closes (through its own
+  // centreline, as a pushed wire buckled in the aortic root would touch itself).
+  Line ring;
+  const double R = 60e-3 / (2 * kPi);
+  for (int i = 0; i <= 80; ++i) {
+    const double a = 2 * kPi * i / 60.0;
+    ring.add(Vec3(R * std::cos(a), R * std::sin(a), 0.2e-3 * i / 60.0));
+  }
+  const auto [i, j] = ring.loop();
+  ASSERT_GE(i, 0);
+  EXPECT_GE(ring.s[j] - ring.s[i], 30e-3);
+  EXPECT_LT((ring.x[j] - ring.x[i]).norm(), 1.4e-3);
+  // A J tip's 3 mm curve and a catheter's wide U-turn (limbs 20 mm apart) are bends, not loops;
+  // a wire folded back with its limbs side by side (1.2 mm between centrelines) is a loop.
+  EXPECT_EQ(hairpin(1.5e-3, 2e-3).loop().first, -1);
+  EXPECT_EQ(hairpin(10e-3, 60e-3).loop().first, -1);
+  const Line folded = hairpin(0.6e-3, 40e-3);
+  EXPECT_GE(folded.loop().first, 0);
+  // Only the inserted part counts: from a node past the fold's first limb, none.
+  EXPECT_EQ(folded.loop(static_cast<int>(folded.x.size()) - 30).first, -1);
+  // Not finite, too short, or `first` out of range: none, and no hang.
+  Line bad = straight;
+  bad.x[50] = Vec3::Constant(std::nan(""));
+  EXPECT_EQ(bad.loop().first, -1);
+  EXPECT_EQ(straight.loop(500).first, -1);
+  EXPECT_EQ(Line{}.loop().first, -1);
 }
 
 }  // namespace
