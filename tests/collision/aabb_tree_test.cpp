@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <array>
+#include <numbers>
 #include <random>
 
 namespace vcsim {
@@ -412,6 +413,75 @@ TEST(AabbTree, CentreExactlyOnATubeAxisIsInside) {
     ASSERT_TRUE(c.touching) << z;
     EXPECT_FALSE(c.centre_outside) << z;
     EXPECT_LT(c.depth, 2.5e-3 - 0.9 * 2e-3) << "depth r - d, not r + d";
+  }
+}
+
+// The flow divider of a bifurcation (issue 29, the soak's escape at the LAD / first diagonal
+// carina): a ridge of tissue pointing into the lumen, its two faces' inward normals 118 degrees
+// apart. A centre in front of the ridge whose foot lies inside face F, a few nanometres from the
+// ridge, is as far from the ridge edge of the other face G (the distances differ by foot^2 / 2d,
+// within the query's tie) but at another point; G's edge alone, seen first, read the centre as
+// behind the wall by its distance, and the soak's wire was kicked by a depth of r + d. The face's
+// own normal decides, whichever triangle or part is seen first, and so does the ridge's edge
+// pseudo-normal on the edge itself.
+// DISABLED: it fails on today's side test (19 of its 42 cases read outside with G seen first).
+// The fix tried (666ebe5, reverted in bb0e0c3) passed it but made the ten-minute soak blow up at
+// 45 s (docs/measurements.md, 2026-11-26 night); enable it with the next fix.
+TEST(AabbTree, DISABLED_ACentreInFrontOfASharpRidgeIsInsideWhicheverFaceIsSeenFirst) {
+  const Vec3 origin(0.043, -0.030, -0.0037);  // where the soak's carina lies (m)
+  const double half = 31.0 * std::numbers::pi / 180.0;  // half the wedge's angle
+  const double len = 0.3e-3;
+  const Vec3 a = origin + Vec3(-len, 0, 0), b = origin + Vec3(len, 0, 0);
+  // Face F falls away from the ridge toward -y, G toward +y; the tissue is the wedge between.
+  const Vec3 down_f(0, -std::sin(half), -std::cos(half)), down_g(0, std::sin(half), -std::cos(half));
+  const Vec3 n_f(0, -std::cos(half), std::sin(half)), n_g(0, std::cos(half), std::sin(half));
+  for (const bool g_first : {true, false}) {
+    TriangleMesh mesh;
+    mesh.vertices = {a, b, origin + len * down_f, origin + len * down_g};
+    const std::array<int, 3> f{0, 2, 1}, g{0, 1, 3};
+    mesh.triangles = g_first ? std::vector<std::array<int, 3>>{g, f}
+                             : std::vector<std::array<int, 3>>{f, g};
+    mesh.recompute_normals();
+    ASSERT_NEAR((mesh.normals[g_first ? 1 : 0] - n_f).norm(), 0.0, 1e-12);
+    AabbTree tree;
+    tree.build(mesh);
+    // The same faces as two parts of a wall (a beating lumen's patches), merged in either order.
+    std::array<TriangleMesh, 2> part;
+    std::array<AabbTree, 2> part_tree;
+    for (int k = 0; k < 2; ++k) {
+      part[k].vertices = mesh.vertices;
+      part[k].triangles = {mesh.triangles[k]};
+      part[k].recompute_normals();
+      part_tree[k].build(part[k]);
+    }
+    const double r = 0.5 * 0.014 * 0.0254;  // the 0.014" wire's node
+    for (const bool on_f : {true, false}) {
+      const Vec3 down = on_f ? down_f : down_g, n = on_f ? n_f : n_g;
+      for (const double d : {0.05e-3, 0.1784e-3, 0.5e-3}) {
+        for (const double foot : {0.0, 1e-13, 1e-12, 1e-11, 1e-10, 1e-9, 3e-9, 8e-9, 1.5e-8, 2e-8,
+                                  3e-8, 1e-7, 1e-6, 1e-5}) {
+          const Vec3 x = origin + Vec3(0.1e-3, 0, 0) + foot * down + d * n;
+          const double q = std::max(r, d) + 0.2e-3;  // a query radius reaching the wall
+          const SphereContact c = tree.query_sphere(mesh, x, q);
+          ASSERT_TRUE(c.touching);
+          EXPECT_FALSE(c.centre_outside) << "G first " << g_first << ", on F " << on_f
+                                         << ", d " << d << ", foot " << foot;
+          EXPECT_NEAR(c.distance, d, 1e-12);
+          for (const bool reverse : {false, true}) {
+            SphereContactMerge merge;
+            for (int k = 0; k < 2; ++k) {
+              const int p = reverse ? 1 - k : k;
+              const SphereContact pc = part_tree[p].query_sphere(part[p], x, q);
+              if (pc.triangle >= 0) merge.add(pc, p);
+            }
+            const SphereContact m = merge.result(x, q);
+            EXPECT_FALSE(m.centre_outside) << "merged, G first " << g_first << ", on F " << on_f
+                                           << ", reverse " << reverse << ", d " << d
+                                           << ", foot " << foot;
+          }
+        }
+      }
+    }
   }
 }
 
