@@ -200,3 +200,15 @@ def test_the_j_wire_passes_the_aortic_bifurcation_of_the_left_dominant_patient()
     assert done, pilot.status
     assert sim.tip_location("j_wire")[0] == "ascending_aorta"
 
+
+def test_the_guide_engages_the_left_main_at_65_bpm():
+    # Issue 28: at 62-66 bpm a cardiac period outlasted the autopilot's stuck time, and the JL4
+    # sliding into the left sinus below the ostium was pulled back before the beat brought it in.
+    ep = envs.Episode(anatomy="default",
+                      variation=(("aorta_radius_scale", 0.991), ("coronary_radius_scale", 0.961)),
+                      instruments=("catheter-jl4-6f", "wire-014-floppy"), target_segment="lcx",
+                      target_distance=0.054, primary_deg=40.0, secondary_deg=-25.0,
+                      heart_rate_bpm=65.5)
+    sim, pilot, done = _coronary_start(ep, phases=4)
+    assert done, pilot.status
+    assert sim.tip_location("guide")[0] == "left_main"

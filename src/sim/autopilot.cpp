@@ -287,6 +287,14 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
                                      roll_start_ + kMaxRoll);
     }
   };
+  // Near a goal at an ostium in a beating heart (a guide to engage), the tip is given a beat and
+  // a half before it counts as stuck: the ostium moves past a tip waiting below it once a beat,
+  // and below 75 bpm a beat outlasts stuck_time (a JL4 sliding into the left sinus at 65.5 bpm
+  // was pulled back 0.8 s after its last progress, before the beat brought the left main to it;
+  // issue 28).
+  double patience = stuck_time;
+  if (md.motion && ph.goal_distance < kApproach && route_s_.back() - progress_ < kApproach)
+    patience = std::max(patience, 1.5 * md.motion->period());
   if (backing_off_) {
     // Out of a wrong branch slowly: a shaped tip pulled back past the ostium it missed (a
     // Judkins tip in the sinus below the left main) often drops into it on the way.
@@ -302,7 +310,7 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
       best_time_ = t;
       depth_at_best_ = depth(L);
     }
-  } else if (off_route || t - best_time_ > stuck_time || slack > max_slack) {
+  } else if (off_route || t - best_time_ > patience || slack > max_slack) {
     if (++retries_ > max_retries) {
       failed_ = true;
       status_ = "gave up: " + ph.instrument + " stuck before " + ph.goal_segment + " after " +
