@@ -806,6 +806,7 @@ class Autopilot {
   std::vector<double> route_s_;          // arc length along it
   std::vector<int> route_segment_;       // segment each route point lies in
   std::vector<unsigned char> on_route_;  // (segment) 1 if the route passes through it
+  std::vector<double> entry_;  // (segment) m along it past which a tip there is off the route
   double progress_ = 0.0;
   double best_progress_ = 0.0;
   double best_time_ = 0.0;

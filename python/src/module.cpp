@@ -763,6 +763,8 @@ PYBIND11_MODULE(_vcsim, m) {
           "or `duration` s pass; True when the phases are done")
       .def_readwrite("max_retries", &Autopilot::max_retries,
                      "Retries per phase before it gives up (16)")
+      .def_readwrite("trace", &Autopilot::trace,
+                     "Print what it sees and does to stderr, 4 times a second (False)")
       .def_property_readonly("phase", &Autopilot::phase)
       .def_property_readonly("finished", &Autopilot::finished)
       .def_property_readonly("failed", &Autopilot::failed)

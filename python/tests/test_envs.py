@@ -174,3 +174,41 @@ def test_the_coronary_environment_starts_engaged_in_the_beating_heart():
         obs, r, term, trunc, info = env.step(np.array([[0, 0], [0.02, 1.0]], dtype=np.float32))
     assert obs in env.observation_space and env.sim.time > t0
     assert env.sim.rollbacks == 0
+
+
+def _coronary_start(ep, phases):
+    """The scene of a CoronaryNavigation episode and its autopilot run through `phases` phases
+    with the environment's retries: (sim, pilot, True when they were done)."""
+    from vcsim.envs import navigation
+    env = envs.CoronaryNavigation()
+    sim = vcsim.Simulator(env._scenario(ep),
+                          anatomy=navigation._patient_tree(ep.anatomy, ep.variation))
+    pilot = vcsim.Autopilot(sim)
+    pilot.max_retries = 6
+    return sim, pilot, pilot.run(sim, phases=phases, duration=60.0)
+
+
+def test_the_j_wire_passes_the_aortic_bifurcation_of_the_left_dominant_patient():
+    # Issue 28: the J's end swinging into the first millimetres of the left common iliac, which
+    # lie in the aorta's end, read as a wrong branch, and the wire was backed off until it gave up.
+    ep = envs.Episode(anatomy="left-dominant",
+                      variation=(("aorta_radius_scale", 1.031), ("coronary_radius_scale", 0.955)),
+                      instruments=("catheter-jl4-6f", "wire-014-floppy"), target_segment="lcx",
+                      target_distance=0.046, primary_deg=40.0, secondary_deg=-25.0,
+                      heart_rate_bpm=72.3)
+    sim, pilot, done = _coronary_start(ep, phases=1)
+    assert done, pilot.status
+    assert sim.tip_location("j_wire")[0] == "ascending_aorta"
+
+
+def test_the_guide_engages_the_left_main_at_65_bpm():
+    # Issue 28: at 62-66 bpm a cardiac period outlasted the autopilot's stuck time, and the JL4
+    # sliding into the left sinus below the ostium was pulled back before the beat brought it in.
+    ep = envs.Episode(anatomy="default",
+                      variation=(("aorta_radius_scale", 0.991), ("coronary_radius_scale", 0.961)),
+                      instruments=("catheter-jl4-6f", "wire-014-floppy"), target_segment="lcx",
+                      target_distance=0.054, primary_deg=40.0, secondary_deg=-25.0,
+                      heart_rate_bpm=65.5)
+    sim, pilot, done = _coronary_start(ep, phases=4)
+    assert done, pilot.status
+    assert sim.tip_location("guide")[0] == "left_main"

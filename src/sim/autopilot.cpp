@@ -53,6 +53,35 @@ std::size_t nearest_point(const std::vector<Vec3>& pts, const Vec3& X,
   return best;
 }
 
+// How far p lies outside segment seg's lumen as the tree locator measures it (its distance to
+// the nearest centreline edge less the radius there; negative inside).
+double tube_outside(const VesselSegment& seg, const Vec3& p) {
+  double best = 1e300;
+  for (std::size_t k = 0; k + 1 < seg.points.size(); ++k) {
+    const Vec3 d = seg.points[k + 1] - seg.points[k];
+    const double len2 = d.squaredNorm();
+    const double t = len2 > 0.0 ? std::clamp((p - seg.points[k]).dot(d) / len2, 0.0, 1.0) : 0.0;
+    const double r = seg.radii[k] + t * (seg.radii[k + 1] - seg.radii[k]);
+    best = std::min(best, (p - (seg.points[k] + t * d)).norm() - r);
+  }
+  return best;
+}
+
+// Arc length along segment i (not the root) where its centreline leaves its parent's lumen: up
+// to there the two overlap (a junction), and a tip the locator puts in i may as well be in the
+// parent (at the aortic bifurcation the iliacs' first millimetres, about the aorta's radius
+// there, lie in its end).
+double junction_exit(const VesselTree& tree, int i) {
+  const VesselSegment& seg = tree.segments[static_cast<std::size_t>(i)];
+  const VesselSegment& parent = tree.segments[static_cast<std::size_t>(seg.parent)];
+  double s = 0.0;
+  for (std::size_t k = 0; k < seg.points.size(); ++k) {
+    if (k > 0) s += (seg.points[k] - seg.points[k - 1]).norm();
+    if (tube_outside(parent, seg.points[k]) > 0.0) return s;
+  }
+  return s;
+}
+
 void tip_directions(const RodModel& md, const InstrumentState& in, double shaped, Vec3& shaft,
                     Vec3& tipdir) {
   const auto& x = in.rod.x;
@@ -152,6 +181,21 @@ void Autopilot::start_phase(const SimModel& md, const SimState& st) {
     route_segment_.push_back(h.loc.segment);
   }
   for (int s = goal_segment_; s >= 0; s = tree.segments[s].parent) on_route_[s] = 1;
+  // Where the route climbs out of a vessel into its parent through the bifurcation at the
+  // parent's end (from the access up to the vessel the goal lies below), a tip in the other
+  // branch of that bifurcation counts as in it (off the route) only once past the junction: a J
+  // wire coming up one iliac swings its end across the other's mouth. Elsewhere (side branches,
+  // the way down) the first step into a wrong branch is already a wrong turn.
+  entry_.assign(tree.num_segments(), 0.0);
+  for (int a = tree.access.segment; a >= 0 && !is_descendant(tree, goal_segment_, a);
+       a = tree.segments[a].parent) {
+    const int p = tree.segments[a].parent;
+    if (p < 0) break;
+    const double end = segment_length(tree.segments[p]);
+    for (int s = 0; s < tree.num_segments(); ++s)
+      if (tree.segments[s].parent == p && !on_route_[s] && attach_distance(tree, s) >= end)
+        entry_[s] = junction_exit(tree, s);
+  }
   progress_ = best_progress_ = 0.0;
   best_time_ = st.time();
   roll_start_ = roll_[leader_];
@@ -173,7 +217,12 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
   const std::size_t best =
       nearest_point(route_, X, progress_ == 0.0 ? nullptr : &route_s_, progress_, 0.06);
   progress_ = route_s_[best];
-  const bool off_route = !on_route_[hit.loc.segment] || hit.outside > 2e-3;
+  // Off the route: in a branch past its junction (or out of the lumen) is a wrong turn to back
+  // out of; once backing out, the tip is pulled until it is out of that branch altogether.
+  const bool strayed = !on_route_[hit.loc.segment] || hit.outside > 2e-3;
+  const bool off_route =
+      (!on_route_[hit.loc.segment] && hit.loc.distance > entry_[hit.loc.segment]) ||
+      hit.outside > 2e-3;
   const bool reached = hit.loc.segment == goal_segment_ &&
                        hit.loc.distance >= goal_distance_ - ph.tolerance && hit.outside < 0.5e-3;
   if (reached) {
@@ -238,22 +287,30 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
                                      roll_start_ + kMaxRoll);
     }
   };
+  // Near a goal at an ostium in a beating heart (a guide to engage), the tip is given a beat and
+  // a half before it counts as stuck: the ostium moves past a tip waiting below it once a beat,
+  // and below 75 bpm a beat outlasts stuck_time (a JL4 sliding into the left sinus at 65.5 bpm
+  // was pulled back 0.8 s after its last progress, before the beat brought the left main to it;
+  // issue 28).
+  double patience = stuck_time;
+  if (md.motion && ph.goal_distance < kApproach && route_s_.back() - progress_ < kApproach)
+    patience = std::max(patience, 1.5 * md.motion->period());
   if (backing_off_) {
     // Out of a wrong branch slowly: a shaped tip pulled back past the ostium it missed (a
     // Judkins tip in the sinus below the left main) often drops into it on the way.
-    depth_[L] = std::max(0.0, depth_[L] - (off_route ? 0.25 : 1.0) * ph.speed * dt);
+    depth_[L] = std::max(0.0, depth_[L] - (strayed ? 0.25 : 1.0) * ph.speed * dt);
     // A tip in a wrong branch is pulled until it is back on the route, then a little more.
-    if (off_route) {
+    if (strayed) {
       backoff_until_ = std::min(backoff_until_, depth(L) - 0.01);
       steer();  // keep the tip turned toward the ostium it is being pulled past
     }
-    if (depth_[L] <= backoff_until_ && !off_route) {
+    if (depth_[L] <= backoff_until_ && !strayed) {
       backing_off_ = false;
       best_progress_ = progress_;
       best_time_ = t;
       depth_at_best_ = depth(L);
     }
-  } else if (off_route || t - best_time_ > stuck_time || slack > max_slack) {
+  } else if (off_route || t - best_time_ > patience || slack > max_slack) {
     if (++retries_ > max_retries) {
       failed_ = true;
       status_ = "gave up: " + ph.instrument + " stuck before " + ph.goal_segment + " after " +

@@ -154,8 +154,11 @@ class _Navigation(Env):
                 # instruments there gave up): draw another from the same generator, so a seed
                 # still decides the episode.
                 self._failed[ep.start_key] = str(e)
-                if given is not None or redraws >= 5:
+                if given is not None:
                     raise
+                if redraws >= 5:
+                    raise StartFailed(f"{type(self).__name__}: {redraws + 1} draws in a row "
+                                      f"could not be started; the last: {e}") from e
                 redraws += 1
                 ep = self._draw(self.np_random)
                 continue
@@ -423,6 +426,11 @@ class CoronaryNavigation(_Navigation):
     Randomised per reset: the patient (right- or left-dominant), coronary and aortic calibre,
     heart rate 55-95 bpm, the wire (floppy or intermediate), the target vessel and depth (40-80
     mm past its ostium) and the C-arm (one of the usual views of that vessel).
+
+    Targets are the LAD and LCx by default: the autopilot does not seat the JR4 in the RCA today
+    (issue 28), so with targets=("rca",) every reset ends in StartFailed after six draws. About
+    half the LAD/LCx draws cannot be started either (the guide is not seated in the left main);
+    reset() draws again, up to five times, and info["redraws"] counts them.
     """
 
     TARGETS = ("lad", "lcx", "rca")
