@@ -393,6 +393,18 @@ std::string timeline_svg(const Json& a, double end, std::vector<std::string>& ro
   return s.str();
 }
 
+// A frames.csv row's pose into `pose`: the table's pan, and the angles, distances and field where
+// the row has them (runs written before the poses were recorded have the pan alone).
+void read_frame_pose(const std::vector<double>& row, CArmPose& pose) {
+  pose.isocentre = Vec3(row[2], row[3], row[4]) * 1e-3;
+  if (row.size() < 10) return;
+  pose.primary_deg = row[5];
+  pose.secondary_deg = row[6];
+  pose.sid = row[7] * 1e-3;
+  pose.sod = row[8] * 1e-3;
+  pose.fov = row[9] * 1e-3;
+}
+
 // The tips' paths (series.csv, rest anatomy) over an angiogram frame, projected through the
 // frame's C-arm pose: its own angles, distances and field where frames.csv has them (a trainee
 // may have turned or zoomed the C-arm), else the scenario's (the view) with the frame's pan.
@@ -408,15 +420,7 @@ std::string path_svg(const Run& run, const Series& series, const Series* frames,
   const double size = num(v, "size_px", 512);
   std::string image;
   if (frames && frame >= 0) {
-    const auto& row = frames->rows[static_cast<std::size_t>(frame)];
-    pose.isocentre = Vec3(row[2], row[3], row[4]) * 1e-3;
-    if (row.size() >= 10) {
-      pose.primary_deg = row[5];
-      pose.secondary_deg = row[6];
-      pose.sid = row[7] * 1e-3;
-      pose.sod = row[8] * 1e-3;
-      pose.fov = row[9] * 1e-3;
-    }
+    read_frame_pose(frames->rows[static_cast<std::size_t>(frame)], pose);
     const fs::path f = frame_file(run.dir, frame);
     if (fs::exists(f)) image = "data:image/png;base64," + base64(slurp(f, "a frame"));
   }
@@ -577,12 +581,7 @@ fs::path write_report(const fs::path& run_dir, const fs::path& out_arg, const Re
           if (!std::isfinite(row[c]))
             throw InputError(where, frames->columns[c], "expected a number");
         CArmPose pose;
-        pose.isocentre = Vec3(row[2], row[3], row[4]) * 1e-3;
-        pose.primary_deg = row[5];
-        pose.secondary_deg = row[6];
-        pose.sid = row[7] * 1e-3;
-        pose.sod = row[8] * 1e-3;
-        pose.fov = row[9] * 1e-3;
+        read_frame_pose(row, pose);
         pose.validate(where);
       }
     }
