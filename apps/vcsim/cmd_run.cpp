@@ -90,6 +90,7 @@ class RunDisplay : public RunObserver {
   void after_step(const Simulator& sim) override {
     if (sim.metrics().escape_steps > escape_steps_) report_escapes(sim);
     if (film_) film_->after_step(sim);
+    if (force_log_) force_log_->after_step(sim);
     if (bar_ && sim.metrics().steps % 50 == 0) {
       const double wall = (now_us() - loop0_) * 1e-6;
       const std::string what = pilot_ ? pilot_->status() : label_;

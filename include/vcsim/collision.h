@@ -173,6 +173,7 @@ struct SphereContact {
   // the query of the whole (SphereContactMerge): the closest feature's pseudo-normal over the
   // part's faces at it, and the overlapping faces' normals weighted by depth times area.
   Vec3 side_sum = Vec3::Zero();
+  int side_dim = -1;  // that feature's dimension: 0 a vertex, 1 an edge, 2 a face's interior
   Vec3 normal_sum = Vec3::Zero();
   double weight_sum = 0.0;
 };
@@ -194,6 +195,7 @@ class SphereContactMerge {
   double d_min_ = std::numeric_limits<double>::infinity();
   Vec3 point_ = Vec3::Zero();
   int triangle_ = -1;
+  int dim_ = -1;  // dimension of the closest feature (SphereContact::side_dim)
   Vec3 side_ = Vec3::Zero(), normal_sum_ = Vec3::Zero(), fallback_ = Vec3::Zero();
   double weight_ = 0.0;
   int touching_ = 0;

@@ -174,10 +174,25 @@ struct Accumulator {
   Vec3 point = Vec3::Zero();
   int triangle = -1;
   Vec3 pseudo_normal = Vec3::Zero();  // inward direction at the closest feature (sign test)
+  int dim = -1;                       // that feature's dimension: 0 vertex, 1 edge, 2 face
   Vec3 weighted_normal = Vec3::Zero();
   double weight_sum = 0.0;
   int touching = 0;
 };
+
+// 2 for a face's interior, 1 for an edge, 0 for a vertex.
+int feature_dimension(TriangleRegion r) {
+  switch (r) {
+    case TriangleRegion::kFace:
+      return 2;
+    case TriangleRegion::kEdgeAB:
+    case TriangleRegion::kEdgeBC:
+    case TriangleRegion::kEdgeCA:
+      return 1;
+    default:
+      return 0;
+  }
+}
 
 double vertex_angle(const Vec3& at, const Vec3& p, const Vec3& q) {
   const Vec3 u = p - at;
@@ -203,16 +218,27 @@ double vertex_angle(const Vec3& at, const Vec3& p, const Vec3& q) {
 
   // Inside/outside from the closest feature's pseudo-normal (Baerentzen and Aanaes, IEEE TVCG
   // 2005): a face's own normal, the sum over the faces of an edge, the angle-weighted sum at a
-  // vertex. Triangles closer than the current best by more than `tie` restart the sum; those as
-  // close join it only at the same point (the faces of one edge or vertex): a centre equally far
-  // from distinct features (on the axis of a perfectly round tube) would otherwise sum their
-  // opposite normals to nothing and read as outside.
+  // vertex. An edge's or a vertex's sum is whole only when every face at it reports that point, so
+  // the faces at the same point (within `tie`) join it. A centre equally far from distinct
+  // features (on the axis of a perfectly round tube) must not sum their opposite normals to
+  // nothing, so features elsewhere never join. Which one decides among features as near as each
+  // other within `tie`: the one of highest dimension. A centre whose foot lies in a face a few
+  // nanometres from its edge is farther from that edge, as the other face sees it, by only
+  // foot^2 / 2d: within the tie, at another point. That face alone reports the edge, so its sum
+  // there lacks the first face; at a sharp ridge (a bifurcation's flow divider) its normal points
+  // away from the centre, and the first seen of the two decided (issue 29: the soak's wire read
+  // as 0.18 mm behind the wall in front of the LAD / diagonal carina, and kicked by that depth).
+  // A face's own normal is always whole, and an edge's two faces both report it, so preferring
+  // the higher dimension gives the whole sum.
+  const int dim = feature_dimension(cp.region);
   const double tie = 1e-12 + 1e-10 * d;
-  if (d < acc.d_min - tie) {
+  if (d < acc.d_min - tie || (d <= acc.d_min + tie && dim > acc.dim &&
+                              (cp.point - acc.point).squaredNorm() > tie * tie)) {
     acc.d_min = d;
     acc.point = cp.point;
     acc.triangle = t;
     acc.pseudo_normal.setZero();
+    acc.dim = dim;
   }
   if (d <= acc.d_min + tie && (cp.point - acc.point).squaredNorm() <= tie * tie) {
     double w = 1.0;
@@ -230,6 +256,7 @@ double vertex_angle(const Vec3& at, const Vec3& p, const Vec3& q) {
         break;
     }
     acc.pseudo_normal += w * n;
+    acc.dim = std::max(acc.dim, dim);
     if (d < acc.d_min) {
       acc.d_min = d;
       acc.point = cp.point;
@@ -340,6 +367,7 @@ SphereContact decide(const Accumulator& acc, const Vec3& fallback, const Vec3& c
   out.triangle = acc.triangle;
   out.num_touching = acc.touching;
   out.side_sum = acc.pseudo_normal;
+  out.side_dim = acc.dim;
   out.normal_sum = acc.weighted_normal;
   out.weight_sum = acc.weight_sum;
   // Walls equally near on opposite sides (a centre on a tube's axis) cancel each other's
@@ -473,15 +501,21 @@ void SphereContactMerge::add(const SphereContact& part, int triangle) {
   if (part.triangle < 0) return;  // nothing of this part within reach
   const double d = part.distance;
   // The parts' closest features tie when they are one seam vertex or edge: the same tolerance
-  // as between the triangles of one query.
+  // and the same rules as between the triangles of one query (test_triangle): the same point's
+  // faces join, and among features elsewhere as near within the tie the highest dimension decides.
   const double tie = 1e-12 + 1e-10 * d;
-  if (d < d_min_ - tie) {
+  const bool same_point = (part.point - point_).squaredNorm() <= tie * tie;
+  if (d < d_min_ - tie || (d <= d_min_ + tie && part.side_dim > dim_ && !same_point)) {
     side_ = Vec3::Zero();
     point_ = part.point;
+    d_min_ = d;
+    triangle_ = triangle;
+    fallback_ = part.normal;
+    dim_ = part.side_dim;
   }
-  // As within one query: only the same point's faces (a seam vertex or edge) join.
   if (d <= d_min_ + tie && (part.point - point_).squaredNorm() <= tie * tie) {
     side_ += part.side_sum;
+    dim_ = std::max(dim_, part.side_dim);
     if (d < d_min_) {
       d_min_ = d;
       point_ = part.point;
@@ -500,6 +534,7 @@ SphereContact SphereContactMerge::result(const Vec3& centre, double radius) cons
   acc.point = point_;
   acc.triangle = triangle_;
   acc.pseudo_normal = side_;
+  acc.dim = dim_;
   acc.weighted_normal = normal_sum_;
   acc.weight_sum = weight_;
   acc.touching = touching_;

@@ -48,9 +48,24 @@ TEST(RunCli, ScriptedRunWritesFramesAndMetrics) {
   const fs::path d = scratch("ok");
   write(d / "timeline.json", kTimeline);
   write(d / "s.json", scenario("", R"({"fps": 10, "follow_tip": true, "fov_mm": 250})"));
-  const CliResult r = run_cli("run " + (d / "s.json").string() + " --out " + (d / "out").string());
+  const CliResult r = run_cli("run " + (d / "s.json").string() + " --out " + (d / "out").string() +
+                              " --force-log " + (d / "force.csv").string());
   ASSERT_EQ(r.status, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("all landmarks reached"), std::string::npos) << r.out;
+  // The force log: its header, then one row per step (time, depth, force, torque), the last at
+  // the end of the push.
+  std::ifstream log(d / "force.csv");
+  std::string line, last;
+  std::getline(log, line);
+  EXPECT_EQ(line, "time_s,wire_depth_mm,wire_force_n,wire_torque_nmm");
+  int rows = 0;
+  while (std::getline(log, line)) {
+    ++rows;
+    last = line;
+  }
+  EXPECT_EQ(rows, 2400);
+  ASSERT_EQ(last.rfind("1.2000,", 0), 0u) << last;
+  EXPECT_NEAR(std::stod(last.substr(7)), 120.0, 0.1) << last;  // mm inserted
   int frames = 0;
   for (const auto& e : fs::directory_iterator(d / "out" / "frames"))
     frames += e.path().extension() == ".png";
