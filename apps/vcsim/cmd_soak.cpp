@@ -2,6 +2,7 @@
 // beating, for a long simulated time (docs/scenarios.md, "Soak"). The engine does the work
 // (soak(), src/sim/soak.cpp); this is options and the report.
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <iostream>
@@ -91,7 +92,11 @@ int cmd_soak(const SoakOptions& o) {
     s.seed = o.seed;
     std::unique_ptr<ForceLog> log;
     if (!o.force_log.empty()) {
-      const std::string file = o.patients.size() > 1 ? patient + "-" + o.force_log : o.force_log;
+      // Several patients: one log each, the patient's name before the file's (in its folder).
+      const std::filesystem::path given(o.force_log);
+      const std::filesystem::path file =
+          o.patients.size() > 1 ? given.parent_path() / (patient + "-" + given.filename().string())
+                                : given;
       log = std::make_unique<ForceLog>(file, sim.model());
     }
     if (!o.quiet)
@@ -140,8 +145,10 @@ void install(CLI::App& app, int& status) {
   cmd->add_option("--minutes", o->minutes, "Simulated minutes per patient (default 60)");
   cmd->add_option("--seed", o->seed, "Seed of the random hands (default 1)");
   cmd->add_option("--json", o->json, "Write the figures to this JSON file");
-  cmd->add_option("--force-log", o->force_log,
-                  "Every step's hand force per instrument to this CSV (vcsim run --force-log)");
+  cmd->add_option(
+      "--force-log", o->force_log,
+      "Every step's hand force per instrument to this CSV (vcsim run --force-log); with "
+      "several patients one file each, the patient's name before the file's");
   cmd->add_flag("--quiet", o->quiet, "No output but errors");
   cmd->callback([o, &status] { status = cmd_soak(*o); });
 }
