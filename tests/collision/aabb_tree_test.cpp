@@ -423,10 +423,9 @@ TEST(AabbTree, CentreExactlyOnATubeAxisIsInside) {
 // behind the wall by its distance, and the soak's wire was kicked by a depth of r + d. The face's
 // own normal decides, whichever triangle or part is seen first, and so does the ridge's edge
 // pseudo-normal on the edge itself.
-// DISABLED: it fails on today's side test (19 of its 42 cases read outside with G seen first).
-// The fix tried (666ebe5, reverted in bb0e0c3) passed it but made the ten-minute soak blow up at
-// 45 s (docs/measurements.md, 2026-11-26 night); enable it with the next fix.
-TEST(AabbTree, DISABLED_ACentreInFrontOfASharpRidgeIsInsideWhicheverFaceIsSeenFirst) {
+// Before the highest dimension decided among features tied at different points, 19 of its 42
+// cases read outside with G seen first.
+TEST(AabbTree, ACentreInFrontOfASharpRidgeIsInsideWhicheverFaceIsSeenFirst) {
   const Vec3 origin(0.043, -0.030, -0.0037);            // where the soak's carina lies (m)
   const double half = 31.0 * std::numbers::pi / 180.0;  // half the wedge's angle
   const double len = 0.3e-3;
