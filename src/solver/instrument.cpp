@@ -576,9 +576,11 @@ void solve_coupling(const Pair& cp, const Inst& in, const Inst& out, const Solve
       no[c.segment + 1] -= c.t * impulse;
       add_coupling_impulse(c, in, out, impulse);
     };
-    // Radial: v_rel . n <= -excess / dt: a violation is removed in full (a wire outside its
-    // catheter is visible at once), a gap may close exactly.
-    const double target = -c.excess / dt;
+    // Radial: v_rel . n <= -beta excess / dt: a fraction beta of a violation is removed by the
+    // velocity (as a wall penetration), the rest by project_coupling after the positions, so that
+    // a wire outside its catheter is still put back at once; a gap may close exactly.
+    const double target =
+        c.excess > 0.0 ? -set.penetration_correction * c.excess / dt : -c.excess / dt;
     const Vec3 rel = inner_velocity(c, in) - outer_velocity(c, out);
     const double ln = std::max(0.0, c.lambda_n + (rel.dot(c.normal) - target) / k);
     apply(-(ln - c.lambda_n) * c.normal);
@@ -594,17 +596,33 @@ void solve_coupling(const Pair& cp, const Inst& in, const Inst& out, const Solve
   }
 }
 
-// The part of each concentric impulse that removed a violation (the radial excess the step
-// began with, taken out in full) is a position fix-up, not a load, like a wall contact's
-// lambda_bias: it is taken out of the impulses the hands feel, with the lumen friction it allowed
-// in proportion. The dynamics keep it (only InstrumentScratch::coupling_impulse changes).
-void remove_coupling_bias(const Pair& cp, const Inst& in, const Inst& out, double dt) {
+// The part of each concentric impulse that removed a violation (beta times the radial excess the
+// step began with) is a position fix-up, not a load, like a wall contact's lambda_bias: it is
+// taken out of the impulses the hands feel, with the lumen friction it allowed in proportion. Its
+// velocity moved the inner point in during the step and must not stay as a bounce (as
+// remove_contact_bias for the wall): the relative radial velocity it left, up to beta excess / dt
+// inward, is taken back from both rods in proportion to their inverse masses. Kept (and with the
+// whole excess removed by the velocity, as until 2026-11-26), it threw the point across the lumen
+// at excess / dt, a whip of the outer tip and of the wire beyond it each time a node entered the
+// lumen with an excess: in the soak a 0.014" wire node at 20 m/s and a catheter tip at 16 m/s,
+// every few millimetres of a catheter pushed over a wire (physics.md 7.1).
+void remove_coupling_bias(const Pair& cp, const Inst& in, const Inst& out, double dt, double beta) {
+  std::vector<Vec3>& vi = in.rod().v;
+  std::vector<Vec3>& vo = out.rod().v;
   for (const CoaxialContact& c : cp.s->contacts) {
     if (c.excess <= 0.0 || c.lambda_n <= 0.0) continue;
-    const double k = coupling_weights(c, in, out).k;
+    const auto [w0, w1, wa, wb, k] = coupling_weights(c, in, out);
     if (k == 0.0) continue;
-    // The impulse that changes the relative normal velocity by excess / dt, at most all of it.
-    const double share = std::min(1.0, c.excess / (dt * k) / c.lambda_n);
+    const double vn = (inner_velocity(c, in) - outer_velocity(c, out)).dot(c.normal);
+    if (vn < 0.0) {
+      const Vec3 impulse = (std::min(-vn, beta * c.excess / dt) / k) * c.normal;
+      vi[c.node] += w0 * impulse;
+      if (c.a > 0.0) vi[c.node + 1] += w1 * impulse;
+      vo[c.segment] -= wa * impulse;
+      vo[c.segment + 1] -= wb * impulse;
+    }
+    // The impulse that changes the relative normal velocity by beta excess / dt, at most all of it.
+    const double share = std::min(1.0, beta * c.excess / (dt * k) / c.lambda_n);
     add_coupling_impulse(c, in, out, share * (c.lambda_n * c.normal + c.lambda_t));
   }
 }
@@ -755,7 +773,7 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
     const Inst& out = insts[c.cm->outer];
     if (!in.parked() && !out.parked()) {
       project_coupling(c, static_cast<unsigned char>(k + 1), in, out);
-      remove_coupling_bias(c, in, out, rs.dt);
+      remove_coupling_bias(c, in, out, rs.dt, set.penetration_correction);
     }
   }
   const double t5c = tick();

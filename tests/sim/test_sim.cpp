@@ -275,7 +275,9 @@ TEST(Simulator, AFastPullIsSteppedFinerAndReadsSmoothly) {
   EXPECT_EQ(most, 6) << "0.15 mm per step in fine steps of at most 25 um";
   EXPECT_EQ(last, start) << "the hand at rest again: the coarse masses, exactly";
   EXPECT_GT(coarse, 2.5) << "the scaled inertia of the coarse step";
-  EXPECT_LT(fine, 0.35 * coarse);
+  // 2.68 N with one step, 1.00 N split by travel alone, 0.78 N with the re-split too (physics.md
+  // 5.4; before the coupling's bounce was taken out, 3.24, 0.84 and 0.72 N).
+  EXPECT_LT(fine, 0.4 * coarse);
   EXPECT_LT(fine, 1.0) << "no step 1 N off its neighbours' median";
   // With the simulator's re-split of a sudden load as well (its defaults): smoother still.
   std::int64_t resplit = 0;
