@@ -212,3 +212,26 @@ def test_the_guide_engages_the_left_main_at_65_bpm():
     sim, pilot, done = _coronary_start(ep, phases=4)
     assert done, pilot.status
     assert sim.tip_location("guide")[0] == "left_main"
+
+
+def test_the_coronary_wire_is_pushed_through_the_guide_to_its_tip():
+    # Issue 28: the 0.014" wire, started inside the seated guide 300 mm short of its tip, was
+    # located by the anatomy while still in the guide: along the arch's outer curve its tip read
+    # as in the left subclavian's mouth, and the autopilot backed it off and retried there until
+    # it gave up, never out of the guide (this draw, the first of seed 0, stalled at 655 mm).
+    ep = envs.Episode(anatomy="left-dominant",
+                      variation=(("aorta_radius_scale", 0.935), ("coronary_radius_scale", 1.046)),
+                      instruments=("catheter-jl4-6f", "wire-014-intermediate"),
+                      target_segment="lad", target_distance=0.0617, primary_deg=40.0,
+                      secondary_deg=30.0, heart_rate_bpm=71.9)
+    env = envs.CoronaryNavigation()
+    obs, _ = env.reset(options={"episode": ep})
+    policy = env.autopilot()
+    for _ in range(100):  # 13.3 s; 11.5 s at 30 mm/s take the wire the 340 mm to the guide's tip
+        obs, _, term, _, _ = env.step(policy(obs))
+        guide, wire = env.sim.depths()
+        if wire > guide or term:
+            break
+    assert not policy.failed, policy.status
+    assert wire > guide, f"the wire's tip is {(guide - wire) * 1e3:.0f} mm inside the guide's"
+    assert env.sim.tip_location("wire")[0] == "left_main"

@@ -32,6 +32,7 @@ constexpr double kHoldRange = 15e-3;    // m either way of the seated depth
 constexpr double kApproach = 30e-3;     // m before the goal where the advance slows down  // m: a
                                         // branch this close ahead is aimed at
 constexpr double kDeadband = 10.0 * kPi / 180.0;
+constexpr double kInOuter = 10e-3;    // m: an inner instrument this far short of its outer's depth
 constexpr double kMaxRoll = kPi / 2;  // steering stays within a quarter turn of the phase start
 
 // Distal direction of the instrument's shaft just proximal to its shaped tip, and of the tip.
@@ -217,12 +218,38 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
   const std::size_t best =
       nearest_point(route_, X, progress_ == 0.0 ? nullptr : &route_s_, progress_, 0.06);
   progress_ = route_s_[best];
+  // A wire still in the lumen of the instrument it runs inside (a 0.014" wire in its guiding
+  // catheter): its inserted length short of that instrument's by more than kInOuter, the rule
+  // the solver's coupling holds it by. The guide decides where its tip is: lying along the
+  // arch's outer curve it is put in the left subclavian's mouth or a few millimetres outside the
+  // lumen, and turning it there does nothing. It is only pushed on (issue 28: the coronary
+  // environment's wire, started 300 mm short of the guide's tip, was taken for a wrong turn at
+  // the left subclavian and spent its 16 retries in the arch, never out of the guide).
+  const int outer = md.scenario.find_instrument(md.scenario.instruments[L].inside);
+  const bool in_outer = outer >= 0 && depth(L) < depth(outer) - kInOuter;
+  // Out of a seated guide (a coronary wire): a branch's first millimetres lie in the lumen of
+  // the vessel it leaves (a side branch's in its parent's, each branch of a bifurcation in the
+  // other's), and a tip there that is still inside the route's vessel where it has got to is not
+  // yet in the branch. The LCx's wire was put 0.7-1.3 mm into the first obtuse marginal's mouth
+  // while inside the LCx and pulled back four times; at the left main's end it was put 1.6-2.2
+  // mm into the LAD, 0.2 mm inside its wall, and pulled back before it had taken either branch,
+  // 16 times in a row (issue 28).
+  const bool guided = outer >= 0 && std::ranges::any_of(holds_, [&](const Hold& h) {
+                        return h.instrument == outer;
+                      });
+  bool in_route_vessel = false;
+  if (guided && !on_route_[hit.loc.segment]) {
+    const std::size_t ahead = std::min(route_.size() - 1, best + 3);
+    for (const int rs : {route_segment_[best], route_segment_[ahead]})
+      if (tube_outside(md.tree.segments[rs], X) < 0.0) in_route_vessel = true;
+  }
   // Off the route: in a branch past its junction (or out of the lumen) is a wrong turn to back
   // out of; once backing out, the tip is pulled until it is out of that branch altogether.
-  const bool strayed = !on_route_[hit.loc.segment] || hit.outside > 2e-3;
-  const bool off_route =
-      (!on_route_[hit.loc.segment] && hit.loc.distance > entry_[hit.loc.segment]) ||
-      hit.outside > 2e-3;
+  const bool strayed =
+      !in_outer && ((!on_route_[hit.loc.segment] && !in_route_vessel) || hit.outside > 2e-3);
+  const bool off_route = !in_outer && ((!on_route_[hit.loc.segment] && !in_route_vessel &&
+                                        hit.loc.distance > entry_[hit.loc.segment]) ||
+                                       hit.outside > 2e-3);
   const bool reached = hit.loc.segment == goal_segment_ &&
                        hit.loc.distance >= goal_distance_ - ph.tolerance && hit.outside < 0.5e-3;
   if (reached) {
@@ -257,6 +284,11 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
   if (depth_at_best_ < 0.0) depth_at_best_ = depth(L);
   const double slack = depth(L) - depth_at_best_;
 
+  // A wire out of a seated guiding catheter turns freely inside it (the guide, not the vessel
+  // wall, holds its shaft): its tip may be turned a whole turn either way, where a catheter's
+  // stops at a quarter turn (held at half a turn, the steering of a wire that had to go further
+  // round to face the LCx pinned it there), and its retries try quarter and half turns.
+  const double max_roll = guided ? 2.0 * kPi : kMaxRoll;
   // Steer: turn the tip's bend toward the route ahead (about the shaft's axis).
   auto steer = [&]() {
     std::size_t k = best;
@@ -283,8 +315,8 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
       // Within a quarter turn either way of where the phase started: a tip that does not follow
       // the hand is held by the wall, and winding the shaft up further only stores torque.
       if (std::abs(phi) > kDeadband)
-        roll_target_[L] = std::clamp(roll_[L] + steer_gain * phi * dt, roll_start_ - kMaxRoll,
-                                     roll_start_ + kMaxRoll);
+        roll_target_[L] = std::clamp(roll_[L] + steer_gain * phi * dt, roll_start_ - max_roll,
+                                     roll_start_ + max_roll);
     }
   };
   // Near a goal at an ostium in a beating heart (a guide to engage), the tip is given a beat and
@@ -310,6 +342,13 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
       best_time_ = t;
       depth_at_best_ = depth(L);
     }
+  } else if (in_outer) {
+    // Pushed on through the guide: its lumen, not the anatomy, decides where the tip goes.
+    best_progress_ = std::max(best_progress_, progress_);
+    best_time_ = t;
+    depth_at_best_ = depth(L);
+    // From where it is (a wire brought up the guide by other hands since the phase began).
+    depth_[L] = std::min(std::max(depth_[L], depth(L)) + ph.speed * dt, depth(L) + 0.01);
   } else if (off_route || t - best_time_ > patience || slack > max_slack) {
     if (++retries_ > max_retries) {
       failed_ = true;
@@ -318,6 +357,14 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
       return;
     }
     ++retries_total_;
+    if (trace)
+      std::fprintf(stderr, "autopilot t %.3f retry %d: %s\n", t, retries_,
+                   off_route ? ("off the route in " + md.tree.segments[hit.loc.segment].name +
+                                " at " + std::to_string(hit.loc.distance * 1e3) + " mm, " +
+                                std::to_string(hit.outside * 1e3) + " mm outside")
+                                   .c_str()
+                   : slack > max_slack ? "slack"
+                                       : "no progress");
     backing_off_ = true;
     // Back from where the last progress was, but not more than two back-offs behind where the
     // tip got furthest in this phase: retries that each start a back-off lower walked a guide
@@ -330,7 +377,8 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
     // started (+1, -1, +2, -2, 0 eighths of a turn): an operator does not wind a catheter up
     // by whole turns, which stores torque that releases as a whip.
     constexpr double kTries[] = {1.0, -1.0, 2.0, -2.0, 0.0};
-    roll_target_[L] = roll_start_ + retry_turn * kTries[(retries_ - 1) % 5];
+    // A wire out of a seated guide: quarter and half turns.
+    roll_target_[L] = roll_start_ + (guided ? 2.0 : 1.0) * retry_turn * kTries[(retries_ - 1) % 5];
   } else {
     if (progress_ > phase_best_progress_) {
       phase_best_progress_ = progress_;
