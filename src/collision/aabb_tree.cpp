@@ -232,8 +232,8 @@ double vertex_angle(const Vec3& at, const Vec3& p, const Vec3& q) {
   // the higher dimension gives the whole sum.
   const int dim = feature_dimension(cp.region);
   const double tie = 1e-12 + 1e-10 * d;
-  if (d < acc.d_min - tie || (d <= acc.d_min + tie && dim > acc.dim &&
-                              (cp.point - acc.point).squaredNorm() > tie * tie)) {
+  if (d < acc.d_min - tie ||
+      (d <= acc.d_min + tie && dim > acc.dim && (cp.point - acc.point).squaredNorm() > tie * tie)) {
     acc.d_min = d;
     acc.point = cp.point;
     acc.triangle = t;
