@@ -539,6 +539,16 @@ Vec3 outer_velocity(const CoaxialContact& c, const Inst& out) {
   return (1 - c.t) * out.rod().v[c.segment] + c.t * out.rod().v[c.segment + 1];
 }
 
+// The velocities an impulse at the contact's inner point gives both rods (its reaction on the
+// outer), by their weighted inverse masses.
+void add_coupling_velocity(const CoaxialContact& c, const CouplingWeights& w, std::vector<Vec3>& vi,
+                           std::vector<Vec3>& vo, const Vec3& impulse) {
+  vi[c.node] += w.w0 * impulse;
+  if (c.a > 0.0) vi[c.node + 1] += w.w1 * impulse;
+  vo[c.segment] -= w.wa * impulse;
+  vo[c.segment + 1] -= w.wb * impulse;
+}
+
 // Adds an impulse at the contact's inner point to InstrumentScratch::coupling_impulse, its
 // reaction at the outer point.
 void add_coupling_impulse(const CoaxialContact& c, const Inst& in, const Inst& out,
@@ -564,14 +574,9 @@ void solve_coupling(const Pair& cp, const Inst& in, const Inst& out, const Solve
     const auto [w0, w1, wa, wb, k] = coupling_weights(c, in, out);
     if (k == 0.0) continue;
     auto apply = [&](const Vec3& impulse) {  // impulse on the inner point, reaction on the outer
-      vi[c.node] += w0 * impulse;
+      add_coupling_velocity(c, {w0, w1, wa, wb, k}, vi, vo, impulse);
       ni[c.node] += (1 - c.a) * impulse;
-      if (c.a > 0.0) {
-        vi[c.node + 1] += w1 * impulse;
-        ni[c.node + 1] += c.a * impulse;
-      }
-      vo[c.segment] -= wa * impulse;
-      vo[c.segment + 1] -= wb * impulse;
+      if (c.a > 0.0) ni[c.node + 1] += c.a * impulse;
       no[c.segment] -= (1 - c.t) * impulse;
       no[c.segment + 1] -= c.t * impulse;
       add_coupling_impulse(c, in, out, impulse);
@@ -605,7 +610,7 @@ void solve_coupling(const Pair& cp, const Inst& in, const Inst& out, const Solve
 // whole excess removed by the velocity, as until 2026-11-26), it threw the point across the lumen
 // at excess / dt, a whip of the outer tip and of the wire beyond it each time a node entered the
 // lumen with an excess: in the soak a 0.014" wire node at 20 m/s and a catheter tip at 16 m/s,
-// every few millimetres of a catheter pushed over a wire (physics.md 7.1).
+// every few millimetres of a catheter pushed over a wire (physics.md 7).
 void remove_coupling_bias(const Pair& cp, const Inst& in, const Inst& out, double dt, double beta) {
   std::vector<Vec3>& vi = in.rod().v;
   std::vector<Vec3>& vo = out.rod().v;
@@ -615,11 +620,8 @@ void remove_coupling_bias(const Pair& cp, const Inst& in, const Inst& out, doubl
     if (k == 0.0) continue;
     const double vn = (inner_velocity(c, in) - outer_velocity(c, out)).dot(c.normal);
     if (vn < 0.0) {
-      const Vec3 impulse = (std::min(-vn, beta * c.excess / dt) / k) * c.normal;
-      vi[c.node] += w0 * impulse;
-      if (c.a > 0.0) vi[c.node + 1] += w1 * impulse;
-      vo[c.segment] -= wa * impulse;
-      vo[c.segment + 1] -= wb * impulse;
+      add_coupling_velocity(c, {w0, w1, wa, wb, k}, vi, vo,
+                            (std::min(-vn, beta * c.excess / dt) / k) * c.normal);
     }
     // The impulse that changes the relative normal velocity by beta excess / dt, at most all of it.
     const double share = std::min(1.0, beta * c.excess / (dt * k) / c.lambda_n);
