@@ -169,8 +169,10 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
   InstrumentScratch& w = *in.w;
   const double dt = set.rod.dt;
   w.contacts.clear();
+  std::fill(w.room.begin(), w.room.end(), kNoWall);
   int nq = 0;
   s.wall_travel += wall.speed_bound() * dt;
+  const double wall_step = wall.speed_bound() * dt;  // the most a moving wall comes this step
   const int first = in.driven() ? in.drive().first_free : 0;
   for (int i = first; i < md.n; ++i) {
     if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i] || in.held(i) || in_sheath(in, i)) continue;
@@ -180,7 +182,10 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
       // where no moving part of the wall can reach that query's sphere).
       const double travel = s.travel_at[i] < 0.0 ? 0.0 : s.wall_travel - s.travel_at[i];
       const double moved = (st.x[i] - s.query_centre[i]).norm() + travel;
-      if (moved + reach < s.clearance[i]) continue;  // the wall cannot be within reach
+      if (moved + reach < s.clearance[i]) {  // the wall cannot be within reach
+        w.room[i] = s.clearance[i] - moved - node_radius(md, i) - wall_step;
+        continue;
+      }
     }
     w.query_nodes[nq] = i;
     w.query_points[nq] = st.x[i];
@@ -210,12 +215,14 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
     };
     if (!h.touching) {
       mark(w.query_radii[k]);
+      w.room[i] = w.query_radii[k] - r - wall_step;
       continue;
     }
     const double depth = h.centre_outside ? r + h.distance : r - h.distance;
     const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt - r;
     if (!h.centre_outside && depth < -reach) {
       mark(h.distance);  // near, but not within reach this step
+      w.room[i] = h.distance - r - wall_step;
       continue;
     }
     s.clearance[i] = 0.0;  // in contact: query again next step
@@ -257,13 +264,14 @@ void add_hold_contacts(const Inst& in, const SolverSettings& set) {
 // One projected Gauss-Seidel sweep over the contacts: non-penetration (a velocity that closes a
 // speculative gap exactly, or removes a fraction of a penetration), then the friction impulse
 // clamped to the Coulomb cone (static cone; beyond it, sliding at mu_dynamic).
-void solve_contacts(const Inst& in, const SolverSettings& set) {
+void solve_contacts(const Inst& in, const SolverSettings& set, std::size_t first = 0) {
   const double dt = set.rod.dt;
   const double beta = set.penetration_correction;
   const double mu_s = in.im->contact.mu_static, mu_d = in.im->contact.mu_dynamic;
   const std::vector<double>& inv_mass = in.ws().inv_mass;
   std::vector<Vec3>& vel = in.rod().v;
-  for (NodeContact& c : in.w->contacts) {
+  for (std::size_t k = first; k < in.w->contacts.size(); ++k) {
+    NodeContact& c = in.w->contacts[k];
     const double w = inv_mass[c.node];
     Vec3& v = vel[c.node];
     // Velocities relative to the wall: a beating wall carries what it touches.
@@ -660,6 +668,7 @@ void InstrumentScratch::resize(const RodModel& md) {
   query_radii.assign(n, 0.0);
   query_caches.assign(n, nullptr);
   leaf_cache.assign(n, LeafCache{});
+  room.assign(n, kNoWall);
   contacts.clear();
   contacts.reserve(n);
   sheathed.assign(n, 0);
@@ -670,6 +679,45 @@ void InstrumentScratch::resize(const RodModel& md) {
   coupling_pair.assign(n, -1);
   rim_of.assign(n, -1);
   rim_pair.assign(n, -1);
+}
+
+// A node that the iterations sped up beyond the room its detection checked (a wave down a chain
+// of scaled masses, a tip let go) would cross a wall unseen: it is queried again as far as it is
+// about to travel, and what it meets becomes a contact solved once before the positions. Only its
+// speed into the wall is stopped; the rest of its motion is kept (physics.md 6.3).
+void catch_late_movers(const Inst& in, VesselWall& wall, const SolverSettings& set) {
+  const RodModel& md = in.model();
+  const RodState& st = in.rod();
+  InstrumentState& s = *in.st;
+  InstrumentScratch& w = *in.w;
+  const double dt = set.rod.dt;
+  int nq = 0;
+  for (int i = 0; i < md.n; ++i) {
+    if (w.room[i] == kNoWall) continue;
+    const double travel = st.v[i].norm() * dt;
+    if (travel <= w.room[i]) continue;
+    w.query_nodes[nq] = i;
+    w.query_points[nq] = st.x[i];
+    w.query_radii[nq] = node_radius(md, i) + set.contact_margin + travel;
+    w.query_caches[nq] = &w.leaf_cache[i];
+    ++nq;
+  }
+  if (nq == 0) return;
+  wall.query_spheres(std::span<const Vec3>(w.query_points.data(), nq),
+                     std::span<const double>(w.query_radii.data(), nq),
+                     std::span<LeafCache* const>(w.query_caches.data(), nq), set.leaf_cache_slack,
+                     std::span<SphereContact>(w.hits.data(), nq));
+  const std::size_t first = w.contacts.size();
+  for (int k = 0; k < nq; ++k) {
+    const SphereContact& h = w.hits[k];
+    if (!h.touching) continue;
+    const int i = w.query_nodes[k];
+    const double r = node_radius(md, i);
+    s.clearance[i] = 0.0;  // in contact: query again next step
+    w.contacts.push_back({i, h.normal, h.centre_outside ? r + h.distance : r - h.distance, 0.0,
+                          Vec3::Zero(), wall.velocity(h)});
+  }
+  solve_contacts(in, set, first);
 }
 
 void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWall* wall,
@@ -762,6 +810,9 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
     t_cont += region(1);
     t_coup += tick() - b;
   }
+  if (collide)
+    for (const Inst& in : insts)
+      if (!in.parked()) catch_late_movers(in, *wall, set);
   const double t5 = tick();
   // 6. positions, then the coupled wires exactly into their catheters' lumens
   for_each_active(insts, parallel, [&](std::size_t k) {

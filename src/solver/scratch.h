@@ -3,12 +3,16 @@
 #pragma once
 
 #include <array>
+#include <limits>
 #include <span>
 #include <vector>
 
 #include "vcsim/solver.h"
 
 namespace vcsim::internal {
+
+// InstrumentScratch::room of a node with no wall to watch for.
+inline constexpr double kNoWall = std::numeric_limits<double>::infinity();
 
 // One instrument's scratch, sized once for its node count.
 struct InstrumentScratch {
@@ -23,6 +27,9 @@ struct InstrumentScratch {
   // same answer with or without it, so a restored state need not carry it.
   std::vector<LeafCache> leaf_cache;  // (n)
   std::vector<NodeContact> contacts;  // active contacts, capacity n
+  // (n) How far each node may travel this fine step and still meet no wall that its detection
+  // did not see (m; infinity where it is in contact or not against the wall).
+  std::vector<double> room;
   // (n) 1 + the index of the coupling whose outer instrument's lumen holds the node this step;
   // 0: none (the node meets the wall)
   std::vector<unsigned char> sheathed;
