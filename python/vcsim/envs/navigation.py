@@ -443,6 +443,7 @@ class CoronaryNavigation(_Navigation):
              "rca": ((40, 0), (-30, 0))}
     num_controlled = 2
     _is_coronary = True
+    START_GAP = 0.02  # m: the wire's tip this far inside the guide's at the start
 
     def __init__(self, *, targets=("lad", "lcx"), wires=WIRES, dt=5e-4, **kw):
         targets = tuple(targets)
@@ -503,6 +504,13 @@ class CoronaryNavigation(_Navigation):
                  "goal": {"segment": ostium, "distance_mm": 2}, "speed_mm_s": 40,
                  "tolerance_mm": 2, "seat_mm": 3},
                 {"action": "remove", "instrument": "j_wire"},
+                # The wire run up the guide to START_GAP short of its tip, at half the drive's
+                # speed limit (Sheath::max_speed, 0.5 m/s), while the autopilot holds the guide
+                # seated: the wire's core entering the JL4's curves pulls its tip back, and a
+                # guide merely held at its depth then drops into the sinus (a withdraw relative
+                # to the guide moves either way).
+                {"action": "withdraw", "instrument": "wire", "relative_to": "guide",
+                 "depth_mm": self.START_GAP * 1e3, "speed_mm_s": 250},
                 {"action": "navigate", "instrument": "wire",
                  "goal": {"segment": ep.target_segment, "distance_mm": round(goal * 1e3, 2)},
                  "speed_mm_s": 30}],
@@ -514,18 +522,17 @@ class CoronaryNavigation(_Navigation):
         pilot = _vcsim.Autopilot(sim)
         # Fewer retries than a run's: a start that does not come quickly is drawn again.
         pilot.max_retries = 6
-        if not pilot.run(sim, phases=4, duration=60.0):
+        if not pilot.run(sim, phases=5, duration=60.0):
             raise StartFailed(f"CoronaryNavigation: the guide could not be seated for {ep} "
                               f"(autopilot: {pilot.status})")
         pilot.max_retries = 16
-        # The wire brought up inside the guide to 20 mm short of its tip, the guide held.
-        depths = sim.depths()
-        target = depths[0] - 0.02
-        steps = max(1, round(1.0 / sim.dt))
-        w0 = depths[1]
-        for k in range(1, 11):
-            sim.step([[depths[0], sim.rolls()[0]], [w0 + (target - w0) * k / 10, 0.0]],
-                     steps=steps // 10, mode="position")
+        guide, wire = sim.depths()
+        if (abs(guide - wire - self.START_GAP) > 2e-3
+                or sim.tip_location("guide")[0] != self.OSTIUM[ep.target_segment]):
+            raise StartFailed(f"CoronaryNavigation: the wire was not brought up the seated guide "
+                              f"for {ep} (its tip {(guide - wire) * 1e3:.1f} mm inside the "
+                              f"guide's, the guide's tip in "
+                              f"{sim.tip_location('guide')[0]!r})")
         return sim, pilot
 
     def _isocentre(self, anatomy):
