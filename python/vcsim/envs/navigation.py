@@ -162,14 +162,17 @@ class _Navigation(Env):
                 redraws += 1
                 ep = self._draw(self.np_random)
                 continue
-            self._starts[ep.start_key] = (sim, sim.snapshot(), pilot)
+            # The C-arm's isocentre with it: found from the centrelines, which take longer to
+            # read than a restore does.
+            self._starts[ep.start_key] = (sim, sim.snapshot(), pilot,
+                                          self._isocentre(sim.anatomy, ep))
             while len(self._starts) > self.start_cache:
                 _, old = self._starts.popitem(last=False)
                 self._fluoro.pop(id(old[0]), None)
         key = ep.start_key
         self._starts.move_to_end(key)
         self._redraws = redraws
-        sim, snap, pilot = self._starts[key]
+        sim, snap, pilot, isocentre = self._starts[key]
         sim.restore(snap)
         sim.threads = self.threads
         self.sim = sim
@@ -179,7 +182,7 @@ class _Navigation(Env):
         self._target = anatomy.point_at(ep.target_segment, ep.target_distance)
         self._carm = _vcsim.CArm(primary_deg=ep.primary_deg, secondary_deg=ep.secondary_deg,
                                  fov=0.2 if not self._is_coronary else 0.15,
-                                 isocentre=self._isocentre(anatomy))
+                                 isocentre=isocentre)
         self._last_action[:] = 0.0
         self._steps = 0
         self._path = self._path_length()
@@ -243,8 +246,9 @@ class _Navigation(Env):
     def _controlled(self):
         return range(self.num_controlled)
 
-    def _isocentre(self, anatomy):
-        return self._target
+    def _isocentre(self, anatomy, ep):
+        """Where the C-arm looks: the middle of the target vessel's centreline."""
+        return _lines(anatomy)[ep.target_segment]["points"].mean(axis=0)
 
     def _tip_rest(self):
         return self.sim.tip_rest(self._lead)
@@ -377,7 +381,7 @@ class ArchNavigation(_Navigation):
         target = self.targets[int(rng.integers(len(self.targets)))] if r else self.targets[0]
         frac = _uniform(rng, 0.5, 0.9, r)
         tree = _arch_tree(anatomy, tuple(sorted(var.items())))
-        c = {c["name"]: c for c in tree.centrelines()}[target]
+        c = _lines(tree)[target]
         s0 = c["ostium_distance"]
         length = tree.segment_length(target)
         dist = round(s0 + frac * (length - s0), 4)
@@ -410,9 +414,8 @@ class ArchNavigation(_Navigation):
         sim.step([[0.055 / 0.5, 0.0]], steps=steps)
         return sim, _vcsim.Autopilot(sim)
 
-    def _isocentre(self, anatomy):
-        c = {c["name"]: c for c in anatomy.centrelines()}["aortic_arch"]
-        return c["points"].mean(axis=0)
+    def _isocentre(self, anatomy, ep):
+        return _lines(anatomy)["aortic_arch"]["points"].mean(axis=0)
 
 
 class CoronaryNavigation(_Navigation):
@@ -535,10 +538,6 @@ class CoronaryNavigation(_Navigation):
                               f"{sim.tip_location('guide')[0]!r})")
         return sim, pilot
 
-    def _isocentre(self, anatomy):
-        c = {c["name"]: c for c in anatomy.centrelines()}[self.episode.target_segment]
-        return c["points"].mean(axis=0)
-
 
 # ---- anatomies, built once per draw (they are small; the lumen is built with the simulator)
 _TREES = collections.OrderedDict()
@@ -565,5 +564,22 @@ def _patient_tree(anatomy, variation):
                    lambda: _vcsim.Anatomy.builtin(anatomy).vary(**dict(variation)))
 
 
+# Centrelines by name per tree (Anatomy.centrelines() converts every segment: 0.1-0.2 ms, more
+# than a reset's restore), kept with a reference to their tree so that its id is not reused.
+_LINES = collections.OrderedDict()
+
+
+def _lines(tree):
+    key = id(tree)
+    if key in _LINES:
+        _LINES.move_to_end(key)
+        return _LINES[key][1]
+    lines = {c["name"]: c for c in tree.centrelines()}
+    _LINES[key] = (tree, lines)
+    while len(_LINES) > 64:
+        _LINES.popitem(last=False)
+    return lines
+
+
 def _ostium(tree, segment):
-    return {c["name"]: c for c in tree.centrelines()}[segment]["ostium_distance"]
+    return _lines(tree)[segment]["ostium_distance"]
