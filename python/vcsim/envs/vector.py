@@ -63,9 +63,10 @@ class ThreadVectorEnv:
         self.observation_space = _batched(self.single_observation_space, self.num_envs)
         self.action_space = _batched(self.single_action_space, self.num_envs)
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=threads or self.num_envs)
-        # vcsim's own environments step their physics together (step_many); others in the pool.
+        # vcsim's own environments step their physics on a Stepper's threads; others in the pool.
         self._together = all(hasattr(e, "_begin_step") and hasattr(e, "_end_step")
                              for e in self.envs)
+        self._stepper = _vcsim.Stepper(self.num_envs) if self._together else None
 
     def reset(self, *, seed=None, options=None):
         seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
@@ -79,19 +80,10 @@ class ThreadVectorEnv:
         if actions.shape != want:
             raise ValueError(f"actions: expected shape {want}, got {actions.shape}")
 
-        if self._together:
-            # The physics of every environment in one call, in parallel without the GIL.
-            full = [e._begin_step(a) for e, a in zip(self.envs, actions)]
-            _vcsim.step_many([e.sim for e in self.envs], full,
-                             [e.control_steps for e in self.envs])
-            ends = [e._end_step() for e in self.envs]
-        else:
-            ends = list(self._pool.map(lambda i: self.envs[i].step(actions[i]),
-                                       range(self.num_envs)))
-
-        def one(i):
+        def one(i, end):
+            """An environment's step result, reset if its episode ended."""
             env = self.envs[i]
-            obs, r, term, trunc, info = ends[i]
+            obs, r, term, trunc, info = end
             if term or trunc:
                 info = dict(info)
                 final_obs, final_info = obs, info
@@ -100,7 +92,27 @@ class ThreadVectorEnv:
                                              "final_info": final_info}
             return obs, r, term, trunc, info
 
-        out = list(self._pool.map(one, range(self.num_envs)))
+        if self._together:
+            # Every environment's physics started on the stepper's threads (every action
+            # checked first), then each one's reward, observation and reset in this thread as
+            # its physics comes back, while the others' still runs.
+            full = [e._begin_step(a) for e, a in zip(self.envs, actions)]
+            for i, e in enumerate(self.envs):
+                self._stepper.start(i, e.sim, full[i], e.control_steps)
+            out = [None] * self.num_envs
+            try:
+                for _ in range(self.num_envs):
+                    i = self._stepper.wait()
+                    out[i] = one(i, self.envs[i]._end_step())
+            finally:
+                while self._stepper.running:  # after an exception: the others' steps finish
+                    try:
+                        self._stepper.wait()
+                    except Exception:
+                        pass
+        else:
+            out = list(self._pool.map(lambda i: one(i, self.envs[i].step(actions[i])),
+                                      range(self.num_envs)))
         obs = _stack([o[0] for o in out])
         return (obs, np.array([o[1] for o in out], dtype=np.float64),
                 np.array([o[2] for o in out], dtype=bool),
@@ -108,6 +120,7 @@ class ThreadVectorEnv:
 
     def close(self):
         self._pool.shutdown(wait=True)
+        self._stepper = None
         for e in self.envs:
             e.close()
 
