@@ -424,15 +424,18 @@ class CoronaryNavigation(_Navigation):
 
     Action: (2, 2), row 0 the guide, row 1 the wire: [translation m/s, rotation rad/s] at
     control_hz. The episode starts with the guide engaged (brought there over a J wire by the
-    autopilot, the J wire then removed) and the wire's tip 20 mm inside the guide's. Success:
+    autopilot, the J wire then removed) and the wire's tip 20 mm inside the guide's (run up while
+    the autopilot held the guide seated). Success:
     the wire's tip (carried back to the heart at rest) within target_tolerance of the target.
     Randomised per reset: the patient (right- or left-dominant), coronary and aortic calibre,
     heart rate 55-95 bpm, the wire (floppy or intermediate), the target vessel and depth (40-80
     mm past its ostium) and the C-arm (one of the usual views of that vessel).
 
     Targets are the LAD and LCx by default: the autopilot does not seat the JR4 in the RCA today
-    (issue 28), so with targets=("rca",) every reset ends in StartFailed after six draws. About
-    half the LAD/LCx draws cannot be started either (the guide is not seated in the left main);
+    (its tip hardly turns with the hand in the aortic root, and the steering stops at a quarter
+    turn; docs/measurements.md), so with targets=("rca",) every reset ends in StartFailed after
+    six draws. About half the LAD/LCx draws cannot be started either (the guide is not seated in
+    the left main);
     reset() draws again, up to five times, and info["redraws"] counts them.
     """
 
