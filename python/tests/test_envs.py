@@ -298,6 +298,8 @@ def test_send_and_recv_give_each_environment_its_own_episode():
         vec.step(acts[:, 0])
     with pytest.raises(ValueError, match="batch_size"):
         vec.recv(batch_size=3)
+    with pytest.raises(ValueError, match="still stepping"):
+        vec.send(acts[1, 0][None], env_ids=[1])
     while vec._stepper.running:
         obs, r, term, trunc, infos = vec.recv()
         (i,) = infos["env_id"]

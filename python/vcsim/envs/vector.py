@@ -72,6 +72,7 @@ class ThreadVectorEnv:
         self._together = all(hasattr(e, "_begin_step") and hasattr(e, "_end_step")
                              for e in self.envs)
         self._stepper = _vcsim.Stepper(self.num_envs) if self._together else None
+        self._sent = set()  # environments sent a step with send() and not yet recv()-ed
 
     def reset(self, *, seed=None, options=None):
         seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
@@ -128,9 +129,13 @@ class ThreadVectorEnv:
         if len(set(ids.tolist())) != len(ids) or any(not 0 <= i < self.num_envs for i in ids):
             raise ValueError(f"env_ids: expected distinct indices in [0, {self.num_envs}), got "
                              f"{ids.tolist()}")
+        busy = sorted(self._sent.intersection(ids.tolist()))
+        if busy:
+            raise ValueError(f"env_ids: {busy} still stepping (recv() them first)")
         full = [self.envs[i]._begin_step(a) for i, a in zip(ids, actions)]
         for i, f in zip(ids, full):
             self._stepper.start(int(i), self.envs[i].sim, f, self.envs[i].control_steps)
+            self._sent.add(int(i))
 
     def recv(self, batch_size=1):
         """(obs, rewards, terminated, truncated, infos) of the next batch_size environments to
@@ -141,7 +146,11 @@ class ThreadVectorEnv:
         if not 1 <= int(batch_size) <= self._stepper.running:
             raise ValueError(f"batch_size: expected 1 to the {self._stepper.running} "
                              f"environments stepping, got {batch_size}")
-        ids = [self._stepper.wait() for _ in range(int(batch_size))]
+        ids = []
+        for _ in range(int(batch_size)):
+            i = self._stepper.wait()
+            self._sent.discard(i)
+            ids.append(i)
         obs, r, term, trunc, infos = self._batch(
             [self._finish(i, self.envs[i]._end_step()) for i in ids])
         infos["env_id"] = np.array(ids, dtype=np.int64)
