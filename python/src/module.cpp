@@ -557,10 +557,18 @@ class Stepper {
       quit_ = true;
     }
     for (auto& s : slots_) s->wake.notify_all();
-    // Steps started finish first (the workers never touch Python objects).
-    py::gil_scoped_release nogil;
-    for (auto& s : slots_)
-      if (s->thread.joinable()) s->thread.join();
+    // Steps started finish first, without the GIL (the workers never touch Python objects);
+    // idle workers end at once, so the GIL is kept then (a Stepper freed as Python shuts down).
+    auto join = [&] {
+      for (auto& s : slots_)
+        if (s->thread.joinable()) s->thread.join();
+    };
+    if (running_ > 0) {
+      py::gil_scoped_release nogil;
+      join();
+    } else {
+      join();
+    }
   }
   int size() const { return static_cast<int>(slots_.size()); }
   int running() const { return running_; }
