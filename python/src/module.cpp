@@ -915,8 +915,8 @@ PYBIND11_MODULE(_vcsim, m) {
           py::arg("seed") = 1, "(size, size) uint8 grey image, row 0 at the top");
 
   py::class_<Stepper>(m, "Stepper",
-                     "Steps simulators on threads of its own (one per slot, the GIL released) "
-                     "and returns each slot as it finishes")
+                      "Steps simulators on threads of its own (one per slot, the GIL released) "
+                      "and returns each slot as it finishes")
       .def(py::init<int>(), py::arg("slots"))
       .def("start", &Stepper::start, py::arg("slot"), py::arg("sim"), py::arg("action"),
            py::arg("steps"), py::kw_only(), py::arg("mode") = "velocity",
