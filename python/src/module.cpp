@@ -7,11 +7,13 @@
 
 #include <cmath>
 #include <condition_variable>
+#include <deque>
 #include <exception>
 #include <mutex>
 #include <optional>
 #include <sstream>
 #include <thread>
+#include <utility>
 
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -535,6 +537,127 @@ static void step_many(const std::vector<PySimulator*>& sims, const py::list& act
   tbb::parallel_for(std::size_t{0}, n, [&](std::size_t i) { sims[i]->advance(steps[i]); });
 }
 
+// Steps simulators on threads of its own, one per slot, without the GIL, and hands back each
+// slot as its physics finishes: a vector environment starts every environment's control step,
+// then computes the reward and observation of each as it comes back while the others still
+// step (with step_many, Python's share of every environment waited for the slowest's physics;
+// issue 28). A simulator must not be used from Python between its start() and the wait() that
+// returns its slot.
+class Stepper {
+ public:
+  explicit Stepper(int slots) {
+    if (slots < 1 || slots > 1024)
+      throw py::value_error("slots: expected 1 to 1024, got " + std::to_string(slots));
+    for (int i = 0; i < slots; ++i) slots_.push_back(std::make_unique<Slot>());
+    for (int i = 0; i < slots; ++i) slots_[i]->thread = std::thread([this, i] { run(i); });
+  }
+  ~Stepper() {
+    {
+      std::lock_guard lk(m_);
+      quit_ = true;
+    }
+    for (auto& s : slots_) s->wake.notify_all();
+    // Steps started finish first, without the GIL (the workers never touch Python objects);
+    // idle workers end at once, so the GIL is kept then (a Stepper freed as Python shuts down).
+    auto join = [&] {
+      for (auto& s : slots_)
+        if (s->thread.joinable()) s->thread.join();
+    };
+    if (running_ > 0) {
+      py::gil_scoped_release nogil;
+      join();
+    } else {
+      join();
+    }
+  }
+  int size() const { return static_cast<int>(slots_.size()); }
+  int running() const { return running_; }
+
+  // Checks the arguments and sets the commands (with the GIL), then the slot's thread steps.
+  void start(int slot, const py::object& sim_obj, const py::object& action, int steps,
+             const std::string& mode) {
+    if (slot < 0 || slot >= size())
+      throw py::index_error("slot: expected 0 to " + std::to_string(size() - 1) + ", got " +
+                            std::to_string(slot));
+    Slot& s = *slots_[slot];
+    if (s.busy) throw py::value_error("slot " + std::to_string(slot) + " is still stepping");
+    PySimulator* sim = sim_obj.cast<PySimulator*>();
+    for (const auto& o : slots_)
+      if (o->busy && o->sim == sim)
+        throw py::value_error("sim: this Simulator is already stepping in another slot");
+    sim->prepare(action, steps, mode, 0.0, 0.0);
+    s.keep = sim_obj;  // alive until its slot is waited for
+    s.sim = sim;
+    s.steps = steps;
+    s.busy = true;
+    ++running_;
+    {
+      std::lock_guard lk(m_);
+      s.go = true;
+    }
+    s.wake.notify_one();
+  }
+
+  // The next slot whose step has finished (each returned once), waiting without the GIL; its
+  // step's exception, if it threw, is raised here.
+  int wait() {
+    if (running_ == 0) throw py::value_error("wait: no slot is stepping");
+    int i;
+    {
+      py::gil_scoped_release nogil;
+      std::unique_lock lk(m_);
+      done_.wait(lk, [&] { return !finished_.empty(); });
+      i = finished_.front();
+      finished_.pop_front();
+    }
+    Slot& s = *slots_[i];
+    s.busy = false;
+    --running_;
+    s.keep = py::object();
+    s.sim = nullptr;
+    if (s.error) std::rethrow_exception(std::exchange(s.error, nullptr));
+    return i;
+  }
+
+ private:
+  struct Slot {
+    std::thread thread;
+    std::condition_variable wake;
+    PySimulator* sim = nullptr;
+    py::object keep;
+    int steps = 0;
+    bool go = false, busy = false;
+    std::exception_ptr error;
+  };
+  void run(int i) {
+    Slot& s = *slots_[i];
+    std::unique_lock lk(m_);
+    for (;;) {
+      s.wake.wait(lk, [&] { return s.go || quit_; });
+      if (!s.go) return;  // a step started before the end is still made
+      s.go = false;
+      lk.unlock();
+      std::exception_ptr error;
+      try {
+        s.sim->advance(s.steps);
+      } catch (...) {
+        error = std::current_exception();
+      }
+      lk.lock();
+      s.error = error;
+      finished_.push_back(i);
+      done_.notify_one();
+    }
+  }
+
+  std::vector<std::unique_ptr<Slot>> slots_;
+  std::mutex m_;
+  std::condition_variable done_;
+  std::deque<int> finished_;
+  int running_ = 0;  // with the GIL
+  bool quit_ = false;
+};
+
 PYBIND11_MODULE(_vcsim, m) {
   m.doc() = "vcsim: a simulator for training cardiovascular interventions (docs/python.md)";
   py::register_exception<InputError>(m, "InputError", PyExc_ValueError);
@@ -790,6 +913,19 @@ PYBIND11_MODULE(_vcsim, m) {
              std::uint64_t seed) { return f.image(s, pose, dose, seed); },
           py::arg("sim"), py::arg("carm"), py::kw_only(), py::arg("dose") = 1e4,
           py::arg("seed") = 1, "(size, size) uint8 grey image, row 0 at the top");
+
+  py::class_<Stepper>(m, "Stepper",
+                      "Steps simulators on threads of its own (one per slot, the GIL released) "
+                      "and returns each slot as it finishes")
+      .def(py::init<int>(), py::arg("slots"))
+      .def("start", &Stepper::start, py::arg("slot"), py::arg("sim"), py::arg("action"),
+           py::arg("steps"), py::kw_only(), py::arg("mode") = "velocity",
+           "Starts `steps` steps of sim with action on slot's thread (arguments checked first); "
+           "sim must not be used until wait() has returned the slot")
+      .def("wait", &Stepper::wait,
+           "The next slot whose step has finished (its exception raised here)")
+      .def_property_readonly("running", &Stepper::running, "Slots started and not yet waited for")
+      .def("__len__", &Stepper::size);
 
   m.def("step_many", &step_many, py::arg("sims"), py::arg("actions"), py::arg("steps"),
         py::kw_only(), py::arg("mode") = "velocity",

@@ -161,8 +161,15 @@ def test_the_vector_environment_equals_stepping_one_by_one():
         assert env.sim.state_hash == hashes[i]
 
 
-def test_the_coronary_environment_starts_engaged_in_the_beating_heart():
+@pytest.fixture(scope="module")
+def coronary_env():
     env = envs.CoronaryNavigation(randomize=False)
+    yield env
+    env.close()
+
+
+def test_the_coronary_environment_starts_engaged_in_the_beating_heart(coronary_env):
+    env = coronary_env
     obs, info = env.reset(seed=0)
     assert env.sim.instrument_names == ["guide", "wire"]
     assert env.action_space.shape == (2, 2) and obs["tracking"].shape == (2, 3, 2)
@@ -174,6 +181,35 @@ def test_the_coronary_environment_starts_engaged_in_the_beating_heart():
         obs, r, term, trunc, info = env.step(np.array([[0, 0], [0.02, 1.0]], dtype=np.float32))
     assert obs in env.observation_space and env.sim.time > t0
     assert env.sim.rollbacks == 0
+
+
+def _along_guide_from_its_tip(sim, p):
+    """(m along the guide's centreline from its tip back to the point nearest p, m from p to
+    that point)."""
+    g = sim.positions("guide")
+    seg = np.linalg.norm(np.diff(g, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    d = np.diff(g, axis=0)
+    t = np.clip(np.einsum("ij,ij->i", p - g[:-1], d) / np.maximum(seg**2, 1e-30), 0.0, 1.0)
+    near = g[:-1] + t[:, None] * d
+    k = int(np.argmin(np.linalg.norm(near - p, axis=1)))
+    return s[-1] - (s[k] + t[k] * seg[k]), float(np.linalg.norm(near[k] - p))
+
+
+def test_the_coronary_episode_starts_with_the_wire_just_inside_the_seated_guide(coronary_env):
+    # Issue 28: the start commanded the wire up the guide in one second, which the drive's
+    # 0.5 m/s limit cut to 500 mm: the episode began with its tip 300-340 mm short of the guide's.
+    env = coronary_env
+    env.reset(seed=0)
+    sim = env.sim
+    along, off = _along_guide_from_its_tip(sim, sim.tips()[sim.index("wire")])
+    assert 15e-3 < along < 30e-3, f"the wire's tip {along * 1e3:.0f} mm inside the guide's"
+    assert off < 1e-3  # in the guide's lumen
+    assert sim.tip_location("guide")[0] == "left_main"
+    # Still seated a second later with the hands still: the episode begins from a stable start.
+    for _ in range(8):
+        env.step(np.zeros((2, 2), dtype=np.float32))
+    assert sim.tip_location("guide")[0] == "left_main"
 
 
 def _coronary_start(ep, phases):
@@ -218,20 +254,68 @@ def test_the_coronary_wire_is_pushed_through_the_guide_to_its_tip():
     # Issue 28: the 0.014" wire, started inside the seated guide 300 mm short of its tip, was
     # located by the anatomy while still in the guide: along the arch's outer curve its tip read
     # as in the left subclavian's mouth, and the autopilot backed it off and retried there until
-    # it gave up, never out of the guide (this draw, the first of seed 0, stalled at 655 mm).
+    # it gave up, never out of the guide (this draw, the first of seed 0, stalled at 655 mm). The
+    # environment's start now brings the wire up to the guide's tip; the scene here has the
+    # wire's navigation start from 500 mm as it did.
+    from vcsim.envs import navigation
     ep = envs.Episode(anatomy="left-dominant",
                       variation=(("aorta_radius_scale", 0.935), ("coronary_radius_scale", 1.046)),
                       instruments=("catheter-jl4-6f", "wire-014-intermediate"),
                       target_segment="lad", target_distance=0.0617, primary_deg=40.0,
                       secondary_deg=30.0, heart_rate_bpm=71.9)
-    env = envs.CoronaryNavigation()
-    obs, _ = env.reset(options={"episode": ep})
-    policy = env.autopilot()
-    for _ in range(100):  # 13.3 s; 11.5 s at 30 mm/s take the wire the 340 mm to the guide's tip
-        obs, _, term, _, _ = env.step(policy(obs))
-        guide, wire = env.sim.depths()
-        if wire > guide or term:
+    sc = envs.CoronaryNavigation()._scenario(ep)
+    sc["autopilot"] = [p for p in sc["autopilot"]
+                       if not (p["action"] == "withdraw" and p["instrument"] == "wire")]
+    sim = vcsim.Simulator(sc, anatomy=navigation._patient_tree(ep.anatomy, ep.variation))
+    pilot = vcsim.Autopilot(sim)
+    pilot.max_retries = 6
+    assert pilot.run(sim, phases=4, duration=60.0), pilot.status
+    guide, _ = sim.depths()
+    for k in range(1, 11):  # the wire up to 500 mm, the guide held
+        sim.step([[guide, sim.rolls()[0]], [0.05 * k, 0.0]], steps=200, mode="position")
+    pilot.max_retries = 16
+    for _ in range(160):  # 16 s; 11.5 s at 30 mm/s take the wire the 340 mm to the guide's tip
+        pilot.run(sim, phases=5, duration=0.1)
+        guide, wire = sim.depths()
+        if wire > guide or pilot.failed:
             break
-    assert not policy.failed, policy.status
+    assert not pilot.failed, pilot.status
     assert wire > guide, f"the wire's tip is {(guide - wire) * 1e3:.0f} mm inside the guide's"
-    assert env.sim.tip_location("wire")[0] == "left_main"
+    assert sim.tip_location("wire")[0] == "left_main"
+
+
+def test_send_and_recv_give_each_environment_its_own_episode():
+    # Asynchronous stepping: environment i, driven through send/recv in whatever order the
+    # steps finish, follows the same trajectory as stepped alone with the same actions.
+    rng = np.random.default_rng(5)
+    acts = (rng.uniform(-1, 1, size=(2, 10, 1, 2)) * np.array([0.05, np.pi])).astype(np.float32)
+    vec = envs.ThreadVectorEnv(envs.ArchNavigation, 2)
+    vobs, _ = vec.reset(seed=30)
+    seen = [[{k: v[i] for k, v in vobs.items()}] for i in range(2)]
+    done = [0, 0]
+    vec.send(acts[:, 0])
+    with pytest.raises(RuntimeError, match="recv"):
+        vec.step(acts[:, 0])
+    with pytest.raises(ValueError, match="batch_size"):
+        vec.recv(batch_size=3)
+    with pytest.raises(ValueError, match="still stepping"):
+        vec.send(acts[1, 0][None], env_ids=[1])
+    while vec._stepper.running:
+        obs, r, term, trunc, infos = vec.recv()
+        (i,) = infos["env_id"]
+        seen[i].append({k: v[0] for k, v in obs.items()})
+        done[i] += 1
+        if done[i] < len(acts[i]):
+            vec.send(acts[i, done[i]][None], env_ids=[i])
+    hashes = [e.sim.state_hash for e in vec.envs]
+    with pytest.raises(ValueError, match="env_ids"):
+        vec.send(acts[:, 0], env_ids=[0, 0])
+    vec.close()
+    for i in range(2):
+        env = envs.ArchNavigation()
+        obs, _ = env.reset(seed=30 + i)
+        assert_obs_equal(obs, seen[i][0])
+        for k in range(len(acts[i])):
+            obs, *_ = env.step(acts[i, k])
+            assert_obs_equal(obs, seen[i][k + 1])
+        assert env.sim.state_hash == hashes[i]

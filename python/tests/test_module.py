@@ -226,3 +226,44 @@ def test_step_many_checks_everything_before_stepping(arch_tree):
     with pytest.raises(ValueError, match="threads"):
         sims[0].threads = -1
     assert [s.state_hash for s in sims] == h
+
+
+def test_the_stepper_steps_as_each_simulator_alone_and_returns_each_slot_once(arch_tree):
+    alone = vcsim.Simulator(arch_scenario(), anatomy=arch_tree)
+    push(alone, 0.06, 1.0, rot=0.5)
+    sims = [vcsim.Simulator(arch_scenario(), anatomy=arch_tree) for _ in range(2)]
+    sims[0].threads = 1
+    stepper = vcsim.Stepper(2)
+    assert len(stepper) == 2 and stepper.running == 0
+    n = round(1.0 / sims[0].dt)
+    for steps in (n // 2, n - n // 2):
+        for i, s in enumerate(sims):
+            stepper.start(i, s, [[0.06, 0.5]], steps)
+        assert stepper.running == 2
+        assert sorted(stepper.wait() for _ in range(2)) == [0, 1]
+    assert sims[0].state_hash == sims[1].state_hash == alone.state_hash
+
+
+def test_the_stepper_refuses_what_would_race(arch_tree):
+    sims = [vcsim.Simulator(arch_scenario(), anatomy=arch_tree) for _ in range(2)]
+    h = sims[1].state_hash
+    stepper = vcsim.Stepper(2)
+    with pytest.raises(ValueError, match="no slot is stepping"):
+        stepper.wait()
+    with pytest.raises(IndexError, match="slot"):
+        stepper.start(2, sims[0], [[0.01, 0.0]], 1)
+    with pytest.raises(ValueError, match="finite"):
+        stepper.start(1, sims[1], [[float("nan"), 0.0]], 1)
+    assert stepper.running == 0
+    stepper.start(0, sims[0], [[0.01, 0.0]], 200)
+    with pytest.raises(ValueError, match="still stepping"):
+        stepper.start(0, sims[1], [[0.01, 0.0]], 1)
+    with pytest.raises(ValueError, match="already stepping"):
+        stepper.start(1, sims[0], [[0.01, 0.0]], 1)
+    assert stepper.wait() == 0 and stepper.running == 0
+    assert sims[1].state_hash == h
+    del stepper  # with a step under way: it finishes, then the threads end
+    stepper = vcsim.Stepper(1)
+    stepper.start(0, sims[1], [[0.01, 0.0]], 500)
+    del stepper
+    assert sims[1].state_hash != h

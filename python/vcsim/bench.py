@@ -10,6 +10,9 @@
 - vector2_steps_per_s and vector2_speedup: the same with ThreadVectorEnv of 2 environments
   (environment steps, both counted), and its ratio to one environment as built by default;
   vector2_per_core_ratio its ratio to env_steps_per_s_one_core.
+- vector2_async_steps_per_s and vector2_async_speedup: the same stepped asynchronously
+  (ThreadVectorEnv.send / recv, each environment given its next action as soon as its step
+  comes back), and its ratio to one environment as built by default.
 - reset_ms: median reset to a cached start (a snapshot restore and the first observation).
 - first_reset_s: a reset to a new anatomy (the scene built and its start made).
 """
@@ -47,6 +50,30 @@ def _run(env_or_vec, seconds, vector):
     return n / (time.perf_counter() - t0)
 
 
+def _run_async(vec, seconds):
+    """_run's actions and count, each environment sent its next action when it comes back."""
+    rng = np.random.default_rng(0)
+    space = vec.single_action_space
+    vec.reset(seed=0)
+    lo = space.low.copy()
+    lo[..., 0] *= 0.2
+
+    def act():
+        return rng.uniform(lo, space.high).astype(np.float32)[None]
+
+    for i in range(vec.num_envs):
+        vec.send(act(), env_ids=[i])
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        *_, infos = vec.recv()
+        n += 1
+        vec.send(act(), env_ids=infos["env_id"])
+    rate = n / (time.perf_counter() - t0)
+    while vec._stepper.running:
+        vec.recv()
+    return rate
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python3 -m vcsim.bench")
     p.add_argument("--seconds", type=float, default=20.0)
@@ -67,6 +94,7 @@ def main(argv=None):
     one_core = _run(env, a.seconds, False)
     vec = envs.ThreadVectorEnv(envs.ArchNavigation, 2, **kw)
     two = _run(vec, a.seconds, True)
+    two_async = _run_async(vec, a.seconds)
     vec.close()
     res = {"env": "ArchNavigation", "control_hz": env.control_hz, "dt_s": env.sim.dt,
            "physics_steps_per_env_step": env.control_steps,
@@ -74,6 +102,8 @@ def main(argv=None):
            "env_steps_per_s": round(one, 1), "env_steps_per_s_one_core": round(one_core, 1),
            "vector2_steps_per_s": round(two, 1), "vector2_speedup": round(two / one, 3),
            "vector2_per_core_ratio": round(two / one_core, 3),
+           "vector2_async_steps_per_s": round(two_async, 1),
+           "vector2_async_speedup": round(two_async / one, 3),
            "reset_ms": round(1e3 * float(np.median(resets)), 4),
            "first_reset_s": round(first_reset, 3), "cores": os.cpu_count(),
            "machine": platform.processor() or platform.machine()}

@@ -162,14 +162,17 @@ class _Navigation(Env):
                 redraws += 1
                 ep = self._draw(self.np_random)
                 continue
-            self._starts[ep.start_key] = (sim, sim.snapshot(), pilot)
+            # The C-arm's isocentre with it: found from the centrelines, which take longer to
+            # read than a restore does.
+            self._starts[ep.start_key] = (sim, sim.snapshot(), pilot,
+                                          self._isocentre(sim.anatomy, ep))
             while len(self._starts) > self.start_cache:
                 _, old = self._starts.popitem(last=False)
                 self._fluoro.pop(id(old[0]), None)
         key = ep.start_key
         self._starts.move_to_end(key)
         self._redraws = redraws
-        sim, snap, pilot = self._starts[key]
+        sim, snap, pilot, isocentre = self._starts[key]
         sim.restore(snap)
         sim.threads = self.threads
         self.sim = sim
@@ -179,7 +182,7 @@ class _Navigation(Env):
         self._target = anatomy.point_at(ep.target_segment, ep.target_distance)
         self._carm = _vcsim.CArm(primary_deg=ep.primary_deg, secondary_deg=ep.secondary_deg,
                                  fov=0.2 if not self._is_coronary else 0.15,
-                                 isocentre=self._isocentre(anatomy))
+                                 isocentre=isocentre)
         self._last_action[:] = 0.0
         self._steps = 0
         self._path = self._path_length()
@@ -243,8 +246,9 @@ class _Navigation(Env):
     def _controlled(self):
         return range(self.num_controlled)
 
-    def _isocentre(self, anatomy):
-        return self._target
+    def _isocentre(self, anatomy, ep):
+        """Where the C-arm looks: the middle of the target vessel's centreline."""
+        return _lines(anatomy)[ep.target_segment]["points"].mean(axis=0)
 
     def _tip_rest(self):
         return self.sim.tip_rest(self._lead)
@@ -377,7 +381,7 @@ class ArchNavigation(_Navigation):
         target = self.targets[int(rng.integers(len(self.targets)))] if r else self.targets[0]
         frac = _uniform(rng, 0.5, 0.9, r)
         tree = _arch_tree(anatomy, tuple(sorted(var.items())))
-        c = {c["name"]: c for c in tree.centrelines()}[target]
+        c = _lines(tree)[target]
         s0 = c["ostium_distance"]
         length = tree.segment_length(target)
         dist = round(s0 + frac * (length - s0), 4)
@@ -410,9 +414,8 @@ class ArchNavigation(_Navigation):
         sim.step([[0.055 / 0.5, 0.0]], steps=steps)
         return sim, _vcsim.Autopilot(sim)
 
-    def _isocentre(self, anatomy):
-        c = {c["name"]: c for c in anatomy.centrelines()}["aortic_arch"]
-        return c["points"].mean(axis=0)
+    def _isocentre(self, anatomy, ep):
+        return _lines(anatomy)["aortic_arch"]["points"].mean(axis=0)
 
 
 class CoronaryNavigation(_Navigation):
@@ -421,15 +424,18 @@ class CoronaryNavigation(_Navigation):
 
     Action: (2, 2), row 0 the guide, row 1 the wire: [translation m/s, rotation rad/s] at
     control_hz. The episode starts with the guide engaged (brought there over a J wire by the
-    autopilot, the J wire then removed) and the wire's tip 20 mm inside the guide's. Success:
+    autopilot, the J wire then removed) and the wire's tip 20 mm inside the guide's (run up while
+    the autopilot held the guide seated). Success:
     the wire's tip (carried back to the heart at rest) within target_tolerance of the target.
     Randomised per reset: the patient (right- or left-dominant), coronary and aortic calibre,
     heart rate 55-95 bpm, the wire (floppy or intermediate), the target vessel and depth (40-80
     mm past its ostium) and the C-arm (one of the usual views of that vessel).
 
     Targets are the LAD and LCx by default: the autopilot does not seat the JR4 in the RCA today
-    (issue 28), so with targets=("rca",) every reset ends in StartFailed after six draws. About
-    half the LAD/LCx draws cannot be started either (the guide is not seated in the left main);
+    (its tip hardly turns with the hand in the aortic root, and the steering stops at a quarter
+    turn; docs/measurements.md), so with targets=("rca",) every reset ends in StartFailed after
+    six draws. About half the LAD/LCx draws cannot be started either (the guide is not seated in
+    the left main);
     reset() draws again, up to five times, and info["redraws"] counts them.
     """
 
@@ -443,6 +449,7 @@ class CoronaryNavigation(_Navigation):
              "rca": ((40, 0), (-30, 0))}
     num_controlled = 2
     _is_coronary = True
+    START_GAP = 0.02  # m: the wire's tip this far inside the guide's at the start
 
     def __init__(self, *, targets=("lad", "lcx"), wires=WIRES, dt=5e-4, **kw):
         targets = tuple(targets)
@@ -503,6 +510,13 @@ class CoronaryNavigation(_Navigation):
                  "goal": {"segment": ostium, "distance_mm": 2}, "speed_mm_s": 40,
                  "tolerance_mm": 2, "seat_mm": 3},
                 {"action": "remove", "instrument": "j_wire"},
+                # The wire run up the guide to START_GAP short of its tip, at half the drive's
+                # speed limit (Sheath::max_speed, 0.5 m/s), while the autopilot holds the guide
+                # seated: the wire's core entering the JL4's curves pulls its tip back, and a
+                # guide merely held at its depth then drops into the sinus (a withdraw relative
+                # to the guide moves either way).
+                {"action": "withdraw", "instrument": "wire", "relative_to": "guide",
+                 "depth_mm": self.START_GAP * 1e3, "speed_mm_s": 250},
                 {"action": "navigate", "instrument": "wire",
                  "goal": {"segment": ep.target_segment, "distance_mm": round(goal * 1e3, 2)},
                  "speed_mm_s": 30}],
@@ -514,23 +528,18 @@ class CoronaryNavigation(_Navigation):
         pilot = _vcsim.Autopilot(sim)
         # Fewer retries than a run's: a start that does not come quickly is drawn again.
         pilot.max_retries = 6
-        if not pilot.run(sim, phases=4, duration=60.0):
+        if not pilot.run(sim, phases=5, duration=60.0):
             raise StartFailed(f"CoronaryNavigation: the guide could not be seated for {ep} "
                               f"(autopilot: {pilot.status})")
         pilot.max_retries = 16
-        # The wire brought up inside the guide to 20 mm short of its tip, the guide held.
-        depths = sim.depths()
-        target = depths[0] - 0.02
-        steps = max(1, round(1.0 / sim.dt))
-        w0 = depths[1]
-        for k in range(1, 11):
-            sim.step([[depths[0], sim.rolls()[0]], [w0 + (target - w0) * k / 10, 0.0]],
-                     steps=steps // 10, mode="position")
+        guide, wire = sim.depths()
+        if (abs(guide - wire - self.START_GAP) > 2e-3
+                or sim.tip_location("guide")[0] != self.OSTIUM[ep.target_segment]):
+            raise StartFailed(f"CoronaryNavigation: the wire was not brought up the seated guide "
+                              f"for {ep} (its tip {(guide - wire) * 1e3:.1f} mm inside the "
+                              f"guide's, the guide's tip in "
+                              f"{sim.tip_location('guide')[0]!r})")
         return sim, pilot
-
-    def _isocentre(self, anatomy):
-        c = {c["name"]: c for c in anatomy.centrelines()}[self.episode.target_segment]
-        return c["points"].mean(axis=0)
 
 
 # ---- anatomies, built once per draw (they are small; the lumen is built with the simulator)
@@ -558,5 +567,22 @@ def _patient_tree(anatomy, variation):
                    lambda: _vcsim.Anatomy.builtin(anatomy).vary(**dict(variation)))
 
 
+# Centrelines by name per tree (Anatomy.centrelines() converts every segment: 0.1-0.2 ms, more
+# than a reset's restore), kept with a reference to their tree so that its id is not reused.
+_LINES = collections.OrderedDict()
+
+
+def _lines(tree):
+    key = id(tree)
+    if key in _LINES:
+        _LINES.move_to_end(key)
+        return _LINES[key][1]
+    lines = {c["name"]: c for c in tree.centrelines()}
+    _LINES[key] = (tree, lines)
+    while len(_LINES) > 64:
+        _LINES.popitem(last=False)
+    return lines
+
+
 def _ostium(tree, segment):
-    return {c["name"]: c for c in tree.centrelines()}[segment]["ostium_distance"]
+    return _lines(tree)[segment]["ostium_distance"]

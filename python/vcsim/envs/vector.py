@@ -35,10 +35,15 @@ class ThreadVectorEnv:
     factories. reset(seed=s) seeds environment i with s + i, so a vector run gives the same
     episodes as stepping the environments one by one with those seeds.
 
-    Each environment's physics steps on its own pool thread only (``threads=1`` of the
-    environment, Simulator.threads), so that N environments keep N cores busy rather than each
-    one's parallel collision queries competing for the same cores; ``sim_threads=0`` leaves the
-    environments' own setting. The results are the same either way.
+    Each environment's physics steps on a thread of its own and on that thread only
+    (``threads=1`` of the environment, Simulator.threads), so that N environments keep N cores
+    busy rather than each one's parallel collision queries competing for the same cores;
+    ``sim_threads=0`` leaves the environments' own setting. The results are the same either way.
+
+    step() waits for every environment (gymnasium's synchronous convention), so it goes at the
+    pace of the slowest physics of each step. ``send(actions, env_ids)`` and ``recv()`` (as
+    EnvPool's asynchronous mode) let each environment step on as soon as it has its action:
+    recv() returns the environments that have finished, ``infos["env_id"]`` saying which.
     """
 
     def __init__(self, env_fns, num_envs=None, threads=None, sim_threads=1, **kwargs):
@@ -63,9 +68,11 @@ class ThreadVectorEnv:
         self.observation_space = _batched(self.single_observation_space, self.num_envs)
         self.action_space = _batched(self.single_action_space, self.num_envs)
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=threads or self.num_envs)
-        # vcsim's own environments step their physics together (step_many); others in the pool.
+        # vcsim's own environments step their physics on a Stepper's threads; others in the pool.
         self._together = all(hasattr(e, "_begin_step") and hasattr(e, "_end_step")
                              for e in self.envs)
+        self._stepper = _vcsim.Stepper(self.num_envs) if self._together else None
+        self._sent = set()  # environments sent a step with send() and not yet recv()-ed
 
     def reset(self, *, seed=None, options=None):
         seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
@@ -79,28 +86,90 @@ class ThreadVectorEnv:
         if actions.shape != want:
             raise ValueError(f"actions: expected shape {want}, got {actions.shape}")
 
+        one = self._finish
         if self._together:
-            # The physics of every environment in one call, in parallel without the GIL.
+            if self._stepper.running:
+                raise RuntimeError("step() while environments sent with send() are still "
+                                   "stepping: recv() them first")
+            # Every environment's physics started on the stepper's threads (every action
+            # checked first), then each one's reward, observation and reset in this thread as
+            # its physics comes back, while the others' still runs.
             full = [e._begin_step(a) for e, a in zip(self.envs, actions)]
-            _vcsim.step_many([e.sim for e in self.envs], full,
-                             [e.control_steps for e in self.envs])
-            ends = [e._end_step() for e in self.envs]
+            for i, e in enumerate(self.envs):
+                self._stepper.start(i, e.sim, full[i], e.control_steps)
+            out = [None] * self.num_envs
+            try:
+                for _ in range(self.num_envs):
+                    i = self._stepper.wait()
+                    out[i] = one(i, self.envs[i]._end_step())
+            finally:
+                while self._stepper.running:  # after an exception: the others' steps finish
+                    try:
+                        self._stepper.wait()
+                    except Exception:
+                        pass
         else:
-            ends = list(self._pool.map(lambda i: self.envs[i].step(actions[i]),
-                                       range(self.num_envs)))
+            out = list(self._pool.map(lambda i: one(i, self.envs[i].step(actions[i])),
+                                      range(self.num_envs)))
+        return self._batch(out)
 
-        def one(i):
-            env = self.envs[i]
-            obs, r, term, trunc, info = ends[i]
-            if term or trunc:
-                info = dict(info)
-                final_obs, final_info = obs, info
-                obs, _ = env.reset()
-                return obs, r, term, trunc, {"final_observation": final_obs,
-                                             "final_info": final_info}
-            return obs, r, term, trunc, info
+    # ---- asynchronous stepping, as EnvPool's send / recv: each environment steps on as soon as
+    # it is given its action, and recv() returns the environments whose steps have finished.
+    def send(self, actions, env_ids=None):
+        """Starts a step of each environment in env_ids (all by default) with actions[k] for
+        env_ids[k]; returns at once. Every action is checked before any environment moves."""
+        if not self._together:
+            raise TypeError("send/recv: only for vcsim's own environments")
+        ids = np.arange(self.num_envs) if env_ids is None else np.asarray(env_ids, dtype=int)
+        actions = np.asarray(actions)
+        want = (len(ids),) + tuple(self.single_action_space.shape)
+        if ids.ndim != 1 or actions.shape != want:
+            raise ValueError(f"actions: expected shape {want} for env_ids {ids.tolist()}, got "
+                             f"{actions.shape}")
+        if len(set(ids.tolist())) != len(ids) or any(not 0 <= i < self.num_envs for i in ids):
+            raise ValueError(f"env_ids: expected distinct indices in [0, {self.num_envs}), got "
+                             f"{ids.tolist()}")
+        busy = sorted(self._sent.intersection(ids.tolist()))
+        if busy:
+            raise ValueError(f"env_ids: {busy} still stepping (recv() them first)")
+        full = [self.envs[i]._begin_step(a) for i, a in zip(ids, actions)]
+        for i, f in zip(ids, full):
+            self._stepper.start(int(i), self.envs[i].sim, f, self.envs[i].control_steps)
+            self._sent.add(int(i))
 
-        out = list(self._pool.map(one, range(self.num_envs)))
+    def recv(self, batch_size=1):
+        """(obs, rewards, terminated, truncated, infos) of the next batch_size environments to
+        finish the steps sent, in the order they finished; infos["env_id"] says which (an
+        environment whose episode ended is reset, as step() does)."""
+        if not self._together:
+            raise TypeError("send/recv: only for vcsim's own environments")
+        if not 1 <= int(batch_size) <= self._stepper.running:
+            raise ValueError(f"batch_size: expected 1 to the {self._stepper.running} "
+                             f"environments stepping, got {batch_size}")
+        ids = []
+        for _ in range(int(batch_size)):
+            i = self._stepper.wait()
+            self._sent.discard(i)
+            ids.append(i)
+        obs, r, term, trunc, infos = self._batch(
+            [self._finish(i, self.envs[i]._end_step()) for i in ids])
+        infos["env_id"] = np.array(ids, dtype=np.int64)
+        return obs, r, term, trunc, infos
+
+    def _finish(self, i, end):
+        """Environment i's step result, reset if its episode ended."""
+        env = self.envs[i]
+        obs, r, term, trunc, info = end
+        if term or trunc:
+            info = dict(info)
+            final_obs, final_info = obs, info
+            obs, _ = env.reset()
+            return obs, r, term, trunc, {"final_observation": final_obs,
+                                         "final_info": final_info}
+        return obs, r, term, trunc, info
+
+    @staticmethod
+    def _batch(out):
         obs = _stack([o[0] for o in out])
         return (obs, np.array([o[1] for o in out], dtype=np.float64),
                 np.array([o[2] for o in out], dtype=bool),
@@ -108,6 +177,7 @@ class ThreadVectorEnv:
 
     def close(self):
         self._pool.shutdown(wait=True)
+        self._stepper = None  # steps still under way finish first
         for e in self.envs:
             e.close()
 
