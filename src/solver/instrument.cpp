@@ -31,6 +31,11 @@ double node_radius(const RodModel& md, int i) {
 // Advances depth and roll from the command and holds every node outside the body on the sheath
 // axis: node i (arc length s_i from the proximal end) is outside while s_i <= L - depth, at
 // access_point - (L - depth - s_i) axis. Frames between two held nodes are turned by the roll.
+// The farthest a node taken into the hand moves to its place on the axis in one step, beyond the
+// hand's own motion (m). A node taken in its place moves some micrometres; one a folded rod
+// brings moves there over several steps.
+constexpr double kFoldedBack = 1e-3;
+
 void drive_begin(const Inst& in, const DriveCommand& cmd, double dt) {
   const RodModel& md = in.model();
   RodState& st = in.rod();
@@ -69,6 +74,7 @@ void drive_begin(const Inst& in, const DriveCommand& cmd, double dt) {
   dr.roll += dt * spin;
 
   const Vec3 axis = sh.frame * Vec3::UnitZ();
+  const Vec3 hand = dr.depth_rate * axis;    // the held part's own motion
   const double outside = md.length - depth;  // arc length still outside the body
   int first_free = md.n;
   for (int i = 0; i < md.n; ++i) {
@@ -76,9 +82,15 @@ void drive_begin(const Inst& in, const DriveCommand& cmd, double dt) {
       first_free = i;
       break;
     }
-    // Held: the velocity that puts the node on the axis at the end of this step.
+    // Held: the velocity that puts the node on the axis at the end of this step. A node taken
+    // into the hand away from its place on the axis (a wire folded back out of the body inside
+    // its catheter) goes there at most kFoldedBack a step beyond the hand's motion: put there in
+    // one step it would leave at metres per second and kick the chain.
     const Vec3 target = sh.access_point - (outside - md.node_s[i]) * axis;
     st.v[i] = (target - st.x[i]) / dt;
+    const Vec3 snap = st.v[i] - hand;
+    const double far = snap.norm() * dt;
+    if (far > kFoldedBack) st.v[i] = hand + snap * (kFoldedBack / far);
     ws.inv_mass[i] = 0.0;
   }
   dr.first_free = first_free;

@@ -237,6 +237,37 @@ TEST(Solver, TheSheathHoldsWhatPassesThroughIt) {
   EXPECT_GT(sag_at(0.0, 0.02).second, 2.0 * play) << "without a sheath it sags there too";
 }
 
+// A node taken into the hand away from its place on the sheath axis (as a wire folded back out
+// of the body inside its catheter is, in the soak) goes there at most 1 mm a step beyond the
+// hand's own motion, and gets there. Put there in one step, a fold of 5.5 mm left the soak's
+// 0.014" wire at 51 m/s and blew the scene up (docs/measurements.md, 2026-11-27).
+TEST(Solver, ANodeTakenIntoTheHandOffItsPlaceIsNotThrownThere) {
+  RodDef d = test_rod(0.1, 60);
+  const double dt = 1e-3;
+  d.density = scaled_density(d, dt);
+  const RodModel probe = build_rod(d);
+  const int k = 20;  // the node the withdrawal takes into the hand
+  // Inserted so that node k lies 0.1 mm inside the access point.
+  const double depth = probe.length - probe.node_s[k] + 0.1e-3;
+  test::Rig inst = test::driven(d, Sheath{}, ContactMaterial{0.0, 0.0}, depth);
+  SolverSettings s;
+  s.rod.dt = dt;
+  inst.step(nullptr, s, DriveCommand{DriveCommand::Mode::kPosition, depth, 0.0});
+  ASSERT_EQ(inst.drive().first_free, k);
+  const Vec3 place = inst.rod().x[k];
+  inst.rod().x[k] += Vec3(3e-3, 0.0, 0.0);  // 3 mm off the axis
+  // Withdrawn 0.2 mm: node k is held from this step on.
+  const DriveCommand pull{DriveCommand::Mode::kPosition, depth - 0.2e-3, 0.0};
+  inst.step(nullptr, s, pull);
+  ASSERT_GT(inst.drive().first_free, k);
+  const Vec3 hand(0.0, 0.0, -0.2);  // the held part's velocity (m/s), along -z
+  EXPECT_LE((inst.rod().v[k] - hand).norm(), 1.0 + 1e-9) << "1 mm in a 1 ms step";
+  EXPECT_GT((inst.rod().x[k] - place).norm(), 1.5e-3) << "still on its way";
+  for (int n = 0; n < 5; ++n) inst.step(nullptr, s, pull);
+  const Vec3 target = place - Vec3(0.0, 0.0, 0.2e-3);
+  EXPECT_LT((inst.rod().x[k] - target).norm(), 1e-9) << "on the axis within three steps";
+}
+
 TEST(Solver, BadInstrumentInputIsAnInputError) {
   RodDef d = test_rod(0.1, 20);
   EXPECT_THROW(test::driven(d, Sheath{}, ContactMaterial{0.1, 0.2}, 0.05), InputError);
