@@ -170,6 +170,14 @@ void note_escape(InstrumentScratch& w, int i, const Vec3& x, double r, const Sph
   }
 }
 
+// Queries the wall at the scratch's first nq query nodes (points, radii, caches) into its hits.
+void query_wall(InstrumentScratch& w, VesselWall& wall, int nq, double slack) {
+  wall.query_spheres(std::span<const Vec3>(w.query_points.data(), nq),
+                     std::span<const double>(w.query_radii.data(), nq),
+                     std::span<LeafCache* const>(w.query_caches.data(), nq), slack,
+                     std::span<SphereContact>(w.hits.data(), nq));
+}
+
 // Finds the contacts of the free nodes. A node is queried with a radius reaching
 // coherence_margin beyond its contact reach; if that finds no wall, the node is skipped until it
 // (or the wall) has moved far enough to close the gap.
@@ -209,10 +217,7 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
     ++nq;
   }
   if (nq == 0) return;
-  wall.query_spheres(std::span<const Vec3>(w.query_points.data(), nq),
-                     std::span<const double>(w.query_radii.data(), nq),
-                     std::span<LeafCache* const>(w.query_caches.data(), nq), set.leaf_cache_slack,
-                     std::span<SphereContact>(w.hits.data(), nq));
+  query_wall(w, wall, nq, set.leaf_cache_slack);
   const bool moving = wall.speed_bound() > 0.0;
   for (int k = 0; k < nq; ++k) {
     const int i = w.query_nodes[k];
@@ -715,10 +720,7 @@ void catch_late_movers(const Inst& in, VesselWall& wall, const SolverSettings& s
     ++nq;
   }
   if (nq == 0) return;
-  wall.query_spheres(std::span<const Vec3>(w.query_points.data(), nq),
-                     std::span<const double>(w.query_radii.data(), nq),
-                     std::span<LeafCache* const>(w.query_caches.data(), nq), set.leaf_cache_slack,
-                     std::span<SphereContact>(w.hits.data(), nq));
+  query_wall(w, wall, nq, set.leaf_cache_slack);
   const std::size_t first = w.contacts.size();
   for (int k = 0; k < nq; ++k) {
     const SphereContact& h = w.hits[k];
