@@ -28,14 +28,14 @@ double node_radius(const RodModel& md, int i) {
 
 // --- insertion drive ---------------------------------------------------------------------------
 
-// Advances depth and roll from the command and holds every node outside the body on the sheath
-// axis: node i (arc length s_i from the proximal end) is outside while s_i <= L - depth, at
-// access_point - (L - depth - s_i) axis. Frames between two held nodes are turned by the roll.
 // The farthest a node taken into the hand moves to its place on the axis in one step, beyond the
 // hand's own motion (m). A node taken in its place moves some micrometres; one a folded rod
 // brings moves there over several steps.
 constexpr double kFoldedBack = 1e-3;
 
+// Advances depth and roll from the command and holds every node outside the body on the sheath
+// axis: node i (arc length s_i from the proximal end) is outside while s_i <= L - depth, at
+// access_point - (L - depth - s_i) axis. Frames between two held nodes are turned by the roll.
 void drive_begin(const Inst& in, const DriveCommand& cmd, double dt) {
   const RodModel& md = in.model();
   RodState& st = in.rod();
@@ -191,8 +191,8 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
   w.contacts.clear();
   std::fill(w.room.begin(), w.room.end(), kNoWall);
   int nq = 0;
-  s.wall_travel += wall.speed_bound() * dt;
   const double wall_step = wall.speed_bound() * dt;  // the most a moving wall comes this step
+  s.wall_travel += wall_step;
   const int first = in.driven() ? in.drive().first_free : 0;
   for (int i = first; i < md.n; ++i) {
     if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i] || in.held(i) || in_sheath(in, i)) continue;
