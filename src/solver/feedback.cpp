@@ -123,8 +123,11 @@ Vec3 quasi_static_force(std::span<Inst> insts, std::size_t self, std::span<const
   InstrumentScratch& w = *in.w;
   const double dt = set.rod.dt;
   std::fill(w.wall_contact_of.begin(), w.wall_contact_of.end(), -1);
-  for (int k = 0; k < static_cast<int>(w.contacts.size()); ++k)
-    w.wall_contact_of[w.contacts[k].node] = k;
+  std::fill(w.wall_contact2_of.begin(), w.wall_contact2_of.end(), -1);
+  for (int k = 0; k < static_cast<int>(w.contacts.size()); ++k) {
+    int& first = w.wall_contact_of[w.contacts[k].node];
+    (first < 0 ? first : w.wall_contact2_of[w.contacts[k].node]) = k;
+  }
   std::fill(w.coupling_of.begin(), w.coupling_of.end(), -1);
   std::fill(w.rim_of.begin(), w.rim_of.end(), -1);
   for (std::size_t pi = 0; pi < couplings.size(); ++pi) {
@@ -164,20 +167,27 @@ Vec3 quasi_static_force(std::span<Inst> insts, std::size_t self, std::span<const
     out = make(-c.normal, v_in - v_out, pair.cm->mu, c.lambda_n / dt, &c, outer);
     return true;
   };
-  // Node i's reactions: its wall or lumen contact, and the rim's where edge i leaves the outer
-  // instrument (all of the rim's reaction lies beyond edge i - 1, so node i's balance decides it).
+  // A wall contact of node i as a reaction candidate; none for a gap the step did not close.
+  auto wall_candidate = [&](int i, int wc, std::array<Candidate, 2>& out, int& k) {
+    const NodeContact& c = w.contacts[wc];
+    if (c.lambda_n > 0.0 || c.depth > 0.0)
+      out[k++] = make(c.normal, st.v[i] - c.wall_velocity,
+                      c.preload > 0.0 ? 0.0 : in.im->contact.mu_dynamic,
+                      (c.lambda_n - c.lambda_bias) / dt, nullptr, nullptr);
+  };
+  // Node i's reactions (at most two): its wall contacts (a second where it slid round a bend onto
+  // another face, catch_late_movers) or its lumen contact, and the rim's where edge i leaves the
+  // outer instrument (all of the rim's reaction lies beyond edge i - 1, so node i's balance
+  // decides it).
   auto candidates_of = [&](int i, std::array<Candidate, 2>& out) {
     int k = 0;
     if (const int wc = w.wall_contact_of[i]; wc >= 0) {
-      const NodeContact& c = w.contacts[wc];
-      if (c.lambda_n > 0.0 || c.depth > 0.0)
-        out[k++] = make(c.normal, st.v[i] - c.wall_velocity,
-                        c.preload > 0.0 ? 0.0 : in.im->contact.mu_dynamic,
-                        (c.lambda_n - c.lambda_bias) / dt, nullptr, nullptr);
+      wall_candidate(i, wc, out, k);
+      if (const int wc2 = w.wall_contact2_of[i]; wc2 >= 0) wall_candidate(i, wc2, out, k);
     } else if (const int c = w.coupling_of[i]; c >= 0 && coaxial(w.coupling_pair[i], c, out[k])) {
       ++k;
     }
-    if (const int r = w.rim_of[i]; r >= 0 && coaxial(w.rim_pair[i], r, out[k])) ++k;
+    if (const int r = w.rim_of[i]; r >= 0 && k < 2 && coaxial(w.rim_pair[i], r, out[k])) ++k;
     return k;
   };
   Vec3 q = Vec3::Zero();  // Q_i: the internal force of the edge distal to node i (none at the tip)

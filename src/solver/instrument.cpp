@@ -147,6 +147,11 @@ void add_sheath_contacts(const Inst& in, const SolverSettings& set) {
 // clearance), so it cannot pass this band unseen; beyond it the plane's far side may hold other
 // vessels.
 constexpr double kExitBand = 20e-3;
+// A node in contact meeting a face whose normal is within about 25 degrees of its contact's
+// (cosine above this) meets the same wall, which already holds it (catch_late_movers).
+constexpr double kSameFace = 0.9;
+// The chain and contact iterations run again after late contacts are added (catch_late_movers).
+constexpr int kLateIterations = 2;
 
 // The escape check on a node just queried (physics.md 6.3), the cost of a compare per contact
 // and a dot product per open end: behind the lumen's wall or a closed end's cap (not a stent's:
@@ -243,6 +248,10 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
       continue;
     }
     s.clearance[i] = 0.0;  // in contact: query again next step
+    // Held off this wall only: sliding along it further than its gap and the margin, it may
+    // meet another face (the far side of a bend), which the late check looks for.
+    w.room[i] = std::max(0.0, -depth) + set.contact_margin;
+    w.contact_normal[i] = h.normal;
     w.contacts.push_back({i, h.normal, depth, 0.0, Vec3::Zero(), wall.velocity(h)});
   }
   if (prof) prof->num_queries += nq;
@@ -686,12 +695,14 @@ void InstrumentScratch::resize(const RodModel& md) {
   query_caches.assign(n, nullptr);
   leaf_cache.assign(n, LeafCache{});
   room.assign(n, kNoWall);
+  contact_normal.assign(n, Vec3::Zero());
   contacts.clear();
   contacts.reserve(n);
   sheathed.assign(n, 0);
   coupling_impulse.assign(n, Vec3::Zero());
   felt_load.assign(n, Vec3::Zero());
   wall_contact_of.assign(n, -1);
+  wall_contact2_of.assign(n, -1);
   coupling_of.assign(n, -1);
   coupling_pair.assign(n, -1);
   rim_of.assign(n, -1);
@@ -700,8 +711,11 @@ void InstrumentScratch::resize(const RodModel& md) {
 
 // A node that the iterations sped up beyond the room its detection checked (a wave down a chain
 // of scaled masses, a tip let go) would cross a wall unseen: it is queried again as far as it is
-// about to travel, and what it meets becomes a contact solved once before the positions. Only its
-// speed into the wall is stopped; the rest of its motion is kept (physics.md 6.3).
+// about to travel, and what it meets becomes a contact. A node in contact, held off its own wall
+// only, is queried where it is about to arrive: a face there other than its own (the far side of
+// a bend it slides round) becomes a second contact, its depth taken back along its normal to the
+// node's present place. The instrument's chain and contacts are then iterated again with them,
+// so that the chain carries what stops the node (physics.md 6.3).
 void catch_late_movers(const Inst& in, VesselWall& wall, const SolverSettings& set) {
   const RodModel& md = in.model();
   const RodState& st = in.rod();
@@ -713,9 +727,10 @@ void catch_late_movers(const Inst& in, VesselWall& wall, const SolverSettings& s
     if (w.room[i] == kNoWall) continue;
     const double travel = st.v[i].norm() * dt;
     if (travel <= w.room[i]) continue;
+    const bool contact = s.clearance[i] == 0.0;
     w.query_nodes[nq] = i;
-    w.query_points[nq] = st.x[i];
-    w.query_radii[nq] = node_radius(md, i) + set.contact_margin + travel;
+    w.query_points[nq] = contact ? Vec3(st.x[i] + st.v[i] * dt) : st.x[i];
+    w.query_radii[nq] = node_radius(md, i) + set.contact_margin + (contact ? 0.0 : travel);
     w.query_caches[nq] = &w.leaf_cache[i];
     ++nq;
   }
@@ -727,11 +742,25 @@ void catch_late_movers(const Inst& in, VesselWall& wall, const SolverSettings& s
     if (!h.touching) continue;
     const int i = w.query_nodes[k];
     const double r = node_radius(md, i);
+    const double depth = h.centre_outside ? r + h.distance : r - h.distance;
+    const Vec3 wall_v = wall.velocity(h);
+    if (s.clearance[i] == 0.0) {
+      // Its own wall (or one facing the same way) holds it already.
+      if (h.normal.dot(w.contact_normal[i]) > kSameFace) continue;
+      const double now = depth + dt * (st.v[i] - wall_v).dot(h.normal);
+      w.contacts.push_back({i, h.normal, now, 0.0, Vec3::Zero(), wall_v});
+      continue;
+    }
     s.clearance[i] = 0.0;  // in contact: query again next step
-    w.contacts.push_back({i, h.normal, h.centre_outside ? r + h.distance : r - h.distance, 0.0,
-                          Vec3::Zero(), wall.velocity(h)});
+    w.contacts.push_back({i, h.normal, depth, 0.0, Vec3::Zero(), wall_v});
   }
+  if (w.contacts.size() == first) return;
   solve_contacts(in, set, first);
+  for (int it = 0; it < kLateIterations; ++it) {
+    if (set.rod.distance != DistanceMethod::kPenalty)
+      rod_distance_iteration(in.model(), set.rod, in.rod(), in.ws());
+    solve_contacts(in, set);
+  }
 }
 
 void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWall* wall,

@@ -28,21 +28,24 @@ struct InstrumentScratch {
   std::vector<LeafCache> leaf_cache;  // (n)
   std::vector<NodeContact> contacts;  // active contacts, capacity n
   // (n) How far each node may travel this fine step and still meet no wall that its detection
-  // did not see (m; infinity where it is in contact or not against the wall).
+  // did not see (m; infinity where it is not against the wall; for a node in contact, its gap and
+  // the contact margin: held off its own wall only, it may meet another face beyond).
   std::vector<double> room;
+  std::vector<Vec3> contact_normal;  // (n) the normal of the node's wall contact, if it has one
   // (n) 1 + the index of the coupling whose outer instrument's lumen holds the node this step;
   // 0: none (the node meets the wall)
   std::vector<unsigned char> sheathed;
   std::vector<Vec3> coupling_impulse;  // (n) coaxial coupling impulses on each node this step
   // Hand-force scratch (physics.md 6.1): reactions of inner instruments on this one's nodes, and
   // each node's wall contact and coupling contact this step (-1: none).
-  std::vector<Vec3> felt_load;       // (n)
-  std::vector<int> wall_contact_of;  // (n)
-  std::vector<int> coupling_of;      // (n) the node's concentric contact (-1: none)
-  std::vector<int> coupling_pair;    // (n) the coupling it belongs to
-  std::vector<int> rim_of;           // (n) the rim contact of the edge from node i (-1: none)
-  std::vector<int> rim_pair;         // (n)
-  std::array<double, 3> stage_us{};  // profile scratch: this instrument's stage times (us)
+  std::vector<Vec3> felt_load;        // (n)
+  std::vector<int> wall_contact_of;   // (n)
+  std::vector<int> wall_contact2_of;  // (n) a second wall contact (catch_late_movers; -1: none)
+  std::vector<int> coupling_of;       // (n) the node's concentric contact (-1: none)
+  std::vector<int> coupling_pair;     // (n) the coupling it belongs to
+  std::vector<int> rim_of;            // (n) the rim contact of the edge from node i (-1: none)
+  std::vector<int> rim_pair;          // (n)
+  std::array<double, 3> stage_us{};   // profile scratch: this instrument's stage times (us)
   // The node farthest outside the vessel so far in this step (reset by each try of the step).
   NodeEscape escape;
 
