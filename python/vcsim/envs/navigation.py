@@ -130,6 +130,12 @@ class _Navigation(Env):
         """(sim, autopilot at the episode's start) for a start key."""
         raise NotImplementedError
 
+    def _tree(self, ep: Episode):
+        """The episode's drawn anatomy (a cached tree of its own, never a simulator's
+        `anatomy`: that view keeps its simulator alive, and a cache holding it would keep every
+        start's simulator after the start cache has let it go)."""
+        raise NotImplementedError
+
     # ---- Gymnasium API
     @property
     def control_steps(self) -> int:
@@ -165,7 +171,7 @@ class _Navigation(Env):
             # The C-arm's isocentre with it: found from the centrelines, which take longer to
             # read than a restore does.
             self._starts[ep.start_key] = (sim, sim.snapshot(), pilot,
-                                          self._isocentre(sim.anatomy, ep))
+                                          self._isocentre(ep))
             while len(self._starts) > self.start_cache:
                 _, old = self._starts.popitem(last=False)
                 self._fluoro.pop(id(old[0]), None)
@@ -246,9 +252,9 @@ class _Navigation(Env):
     def _controlled(self):
         return range(self.num_controlled)
 
-    def _isocentre(self, anatomy, ep):
+    def _isocentre(self, ep):
         """Where the C-arm looks: the middle of the target vessel's centreline."""
-        return _lines(anatomy)[ep.target_segment]["points"].mean(axis=0)
+        return _lines(self._tree(ep))[ep.target_segment]["points"].mean(axis=0)
 
     def _tip_rest(self):
         return self.sim.tip_rest(self._lead)
@@ -391,8 +397,7 @@ class ArchNavigation(_Navigation):
                        secondary_deg=round(_uniform(rng, -10, 10, r), 1) if r else 0.0)
 
     def _scenario(self, ep):
-        goal = ep.target_distance - _ostium(_arch_tree(ep.anatomy, ep.variation),
-                                            ep.target_segment)
+        goal = ep.target_distance - _ostium(self._tree(ep), ep.target_segment)
         return {
             "format": "vcsim-scenario", "version": 1, "name": "arch-navigation",
             "anatomy": "default", "motion": {"beating": False},
@@ -406,16 +411,19 @@ class ArchNavigation(_Navigation):
                            "speed_mm_s": self.velocity_limit[0] * 1e3, "tolerance_mm": 2}],
         }
 
+    def _tree(self, ep):
+        return _arch_tree(ep.anatomy, ep.variation)
+
     def _build(self, ep):
-        tree = _arch_tree(ep.anatomy, ep.variation)
+        tree = self._tree(ep)
         sim = _vcsim.Simulator(self._scenario(ep), anatomy=tree)
         # The wire's tip 30 mm out of the introducer sheath.
         steps = max(1, round(0.5 / sim.dt))
         sim.step([[0.055 / 0.5, 0.0]], steps=steps)
         return sim, _vcsim.Autopilot(sim)
 
-    def _isocentre(self, anatomy, ep):
-        return _lines(anatomy)["aortic_arch"]["points"].mean(axis=0)
+    def _isocentre(self, ep):
+        return _lines(self._tree(ep))["aortic_arch"]["points"].mean(axis=0)
 
 
 class CoronaryNavigation(_Navigation):
@@ -486,8 +494,7 @@ class CoronaryNavigation(_Navigation):
     def _scenario(self, ep):
         guide, wire = ep.instruments
         ostium = self.OSTIUM[ep.target_segment]
-        goal = ep.target_distance - _ostium(_patient_tree(ep.anatomy, ep.variation),
-                                            ep.target_segment)
+        goal = ep.target_distance - _ostium(self._tree(ep), ep.target_segment)
         return {
             "format": "vcsim-scenario", "version": 1, "name": "coronary-navigation",
             "anatomy": ep.anatomy, "motion": {"beating": True,
@@ -522,8 +529,11 @@ class CoronaryNavigation(_Navigation):
                  "speed_mm_s": 30}],
         }
 
+    def _tree(self, ep):
+        return _patient_tree(ep.anatomy, ep.variation)
+
     def _build(self, ep):
-        tree = _patient_tree(ep.anatomy, ep.variation)
+        tree = self._tree(ep)
         sim = _vcsim.Simulator(self._scenario(ep), anatomy=tree)
         pilot = _vcsim.Autopilot(sim)
         # Fewer retries than a run's: a start that does not come quickly is drawn again.
@@ -569,6 +579,8 @@ def _patient_tree(anatomy, variation):
 
 # Centrelines by name per tree (Anatomy.centrelines() converts every segment: 0.1-0.2 ms, more
 # than a reset's restore), kept with a reference to their tree so that its id is not reused.
+# Only the drawn trees above go in: a Simulator's `anatomy` is a view that keeps the simulator
+# (tens of MB) alive, so 64 of them here held 64 dropped starts.
 _LINES = collections.OrderedDict()
 
 
