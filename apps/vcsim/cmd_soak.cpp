@@ -43,6 +43,50 @@ Scenario soak_scenario(const std::string& patient) {
   return sc;
 }
 
+// What a person running a soak for an hour or two sees as it goes: a line each simulated minute
+// (wall time, real-time factor, resident size, rollbacks, escape steps so far) and each
+// instrument's first escape when it happens (as `vcsim run` reports it), both on the console;
+// every step passed on to the force log, if any.
+class SoakConsole : public RunObserver {
+ public:
+  SoakConsole(RunObserver* log, bool progress) : log_(log), progress_(progress), t0_(now_us()) {}
+  bool before_step(const Simulator& sim, const StepCommands& commands) override {
+    return log_ ? log_->before_step(sim, commands) : true;
+  }
+  void after_step(const Simulator& sim) override {
+    if (log_) log_->after_step(sim);
+    const SimMetrics& m = sim.metrics();
+    if (m.escape_steps != escape_steps_) {
+      escape_steps_ = m.escape_steps;
+      reported_.resize(static_cast<std::size_t>(sim.num_instruments()), 0);
+      for (int i = 0; i < sim.num_instruments(); ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        if (m.escapes[k].steps == 0 || reported_[k]) continue;
+        reported_[k] = 1;
+        const EscapeRecord& e = m.escapes[k];
+        std::cerr << "soak: ESCAPE: " << describe_escape(sim.model(), i, e) << std::endl;
+      }
+    }
+    if (progress_ && sim.time() >= next_minute_) {
+      next_minute_ += 60.0;
+      const double wall = (now_us() - t0_) * 1e-6;
+      std::cout << std::fixed << std::setprecision(0) << "  " << sim.time() / 60.0
+                << " min simulated in " << wall << " s (" << std::setprecision(2)
+                << (wall > 0 ? sim.time() / wall : 0.0) << " x real time); resident "
+                << resident_megabytes() << " MB; rollbacks " << m.rollbacks << "; escape steps "
+                << m.escape_steps << std::endl;
+    }
+  }
+
+ private:
+  RunObserver* log_;
+  bool progress_;
+  double t0_;
+  double next_minute_ = 60.0;
+  std::int64_t escape_steps_ = 0;
+  std::vector<char> reported_;  // (instrument) its first escape was reported
+};
+
 nlohmann::json to_json(const SoakReport& r, const std::string& patient, const SimModel& md) {
   nlohmann::json inst = nlohmann::json::array();
   for (std::size_t k = 0; k < r.instruments.size(); ++k) {
@@ -102,7 +146,8 @@ int cmd_soak(const SoakOptions& o) {
     if (!o.quiet)
       std::cout << "soak: " << patient << ", " << o.minutes << " min simulated, seed " << o.seed
                 << std::endl;
-    const SoakReport r = soak(sim, s, log.get());
+    SoakConsole console(log.get(), !o.quiet);
+    const SoakReport r = soak(sim, s, &console);
     all = all && r.passed();
     out.push_back(to_json(r, patient, sim.model()));
     if (!o.quiet) {
