@@ -823,7 +823,17 @@ class Autopilot {
   double next_trace_ = 0.0;
   double aim_distance_ = 0.0, aim_angle_ = 0.0;  // of the leader's tip to its aim (trace)
   double pressure_ = 0.0;                        // Pa commanded to the indeflator
-  double placed_since_ = -1.0;  // s: the markers within tolerance of the target since then
+  // A place phase (Autopilot::place): past the lesion's middle, drawn back to it, watched, and
+  // adjusted between watches.
+  enum class PlaceStage { kPast, kDrawBack, kWatch, kAdjust };
+  PlaceStage place_stage_ = PlaceStage::kPast;
+  double place_limit_ = 0.0;  // m of commanded depth an adjustment moves the hand to
+  double draw_from_ = 0.0;    // m of commanded depth where the first draw-back began
+  double watch_since_ = 0.0;  // s: the hand still and the markers watched since then
+  double watch_sum_ = 0.0;    // their distance to go summed over the watch's steps
+  int watch_n_ = 0;
+  int still_watches_ = 0;    // watches in a row since the hand last moved
+  int watches_ = 0;          // in this phase
   int placed_ = -1;          // the instrument the last place phase placed (watched while inflating)
   double place_goal_ = 0.0;  // m along the place route: the lesion's middle
   TreeLocation place_target_;  // the lesion's middle

@@ -18,8 +18,17 @@ namespace {
 constexpr double kSpacing = 1e-3;         // m between route points
 constexpr double kProgressStep = 1e-3;    // m of progress that counts as moving on
 constexpr double kPlaceApproach = 70e-3;  // m of route before a lesion: out of the guide (place)
-constexpr double kPlacedTime = 0.5;       // s within tolerance before a place is done
-constexpr double kPlaceBeyond = 20e-3;    // m the place route runs on past the lesion's middle
+constexpr double kPlacedTime = 0.5;       // s a place's watch of the markers lasts on a still heart
+constexpr double kPlacePast =
+    3e-3;  // m past the lesion's middle a stent is taken before drawn back
+constexpr double kDrawSpeed = 1e-3;   // m/s: the hand draws a stent back
+constexpr double kDrawSlack = 5e-3;   // m/s: the hand takes up the shaft's slack first
+constexpr double kDrawSeen = 0.5e-3;  // m the markers come back from past before the slack is up
+constexpr double kDrawMost =
+    40e-3;  // m drawn back without the markers reaching the middle: give up
+constexpr double kMostAdjust = 2e-3;           // m: the most the hand moves between two watches
+constexpr int kMaxWatches = 8;                 // watches before a place is taken as it is
+constexpr double kPlaceBeyond = 20e-3;         // m the place route runs on past the lesion's middle
 constexpr double kPositionCheck = 4.0 * kAtm;  // Pa: markers watched while inflating below it
 constexpr double kNudgeSpeed = 2e-3;           // m/s: the hand's correction then
 constexpr double kLookAhead = 12e-3;           // m along the route the tip is aimed at
@@ -137,7 +146,8 @@ void Autopilot::start_phase(const SimModel& md, const SimState& st) {
   follower_ = ph.follower.empty() ? -1 : sc.find_instrument(ph.follower);
   relative_ = ph.relative_to.empty() ? -1 : sc.find_instrument(ph.relative_to);
   status_ = std::string(to_string(ph.kind)) + (ph.instrument.empty() ? "" : " " + ph.instrument);
-  placed_since_ = -1.0;
+  place_stage_ = PlaceStage::kPast;
+  still_watches_ = watches_ = 0;
   if (ph.kind == AutopilotPhase::Kind::kAdd || ph.kind == AutopilotPhase::Kind::kRemove) {
     // The runner makes the change before the next step (exchange_wanted); the hands hold.
     if (ph.kind == AutopilotPhase::Kind::kAdd) status_ += " (" + ph.added.catalogue + ")";
@@ -432,23 +442,86 @@ double Autopilot::markers_remaining(const SimModel& md, const SimState& st, int 
   return along_route;
 }
 
-// The markers brought to the lesion's middle: advanced (slower near it), pulled back if past it;
-// placed when within tolerance for kPlacedTime (the catheter's stored push has come out).
+// The markers brought to the lesion's middle as a cardiologist positions a stent: advanced
+// past it, then drawn back onto it. Pushed across the lesion, the delivery shaft stores push in
+// the guide's curves (it lies along their outer sides; the stent crosses the throat in slips of
+// about a millimetre), so the markers move on after the hand stops and a pull does not reach
+// them until it has taken up that slack, more than 10 mm in the default scene (docs/
+// measurements.md, 2026-11-27). Drawing back first takes up the slack and then moves the stent
+// with the hand. So: advanced until kPlacePast beyond the middle; drawn back (at kDrawSlack until
+// the markers start to come back, then at kDrawSpeed) until they are within half the tolerance
+// of it; then the hand is held still and the markers
+// watched over a beat (kPlacedTime on a still heart), as judged on cine: placed when the mean of
+// a second watch in a row is within the tolerance; off by more, the hand moves by the difference
+// (at most kMostAdjust) and watches again; after kMaxWatches the place is taken as it is.
 void Autopilot::place(const SimModel& md, const SimState& st, const AutopilotPhase& ph) {
   const int L = leader_;
   const double dt = md.dt();
+  const double t = st.time();
   const double remaining = markers_remaining(md, st, L);
   const double depth = st.solver.instruments[static_cast<std::size_t>(L)].drive.depth;
-  if (std::abs(remaining) < ph.tolerance) {
-    if (placed_since_ < 0.0) placed_since_ = st.time();
-    if (st.time() - placed_since_ >= kPlacedTime) {
+  const double near = 0.5 * ph.tolerance;
+  const double past = std::min(kPlacePast, 0.5 * (route_s_.back() - place_goal_));
+  auto watch = [&] {
+    place_stage_ = PlaceStage::kWatch;
+    watch_since_ = t;
+    watch_sum_ = 0.0;
+    watch_n_ = 0;
+  };
+  if (place_stage_ == PlaceStage::kAdjust) {
+    depth_[L] += std::clamp(place_limit_ - depth_[L], -kDrawSpeed * dt, kDrawSpeed * dt);
+    if (std::abs(place_limit_ - depth_[L]) < 1e-9) watch();
+    return;
+  }
+  if (place_stage_ == PlaceStage::kDrawBack) {
+    if (remaining >= -near) {
+      watch();
+      return;
+    }
+    if (draw_from_ - depth_[L] > kDrawMost) {
+      failed_ = true;
+      status_ = "gave up: " + ph.instrument + " does not come back onto lesion " +
+                std::to_string(ph.lesion);
+      return;
+    }
+    // Quickly until the markers start to come back (the slack taken up), then slowly.
+    const bool slack = remaining < kDrawSeen - past;
+    depth_[L] -= (slack ? kDrawSlack : kDrawSpeed) * dt;
+    return;
+  }
+  if (place_stage_ == PlaceStage::kWatch) {
+    watch_sum_ += remaining;
+    ++watch_n_;
+    const double window = md.motion ? std::max(kPlacedTime, md.motion->period()) : kPlacedTime;
+    if (t - watch_since_ < window) return;
+    const double mean = watch_sum_ / watch_n_;
+    ++watches_;
+    ++still_watches_;
+    if (trace)
+      std::fprintf(stderr, "autopilot t %.2f [place] markers %.2f mm to go over a beat (%d)\n", t,
+                   mean * 1e3, watches_);
+    if ((std::abs(mean) < ph.tolerance && still_watches_ >= 2) || watches_ >= kMaxWatches) {
       placed_ = L;
       ++phase_;
       start_phase(md, st);
+    } else if (std::abs(mean) >= ph.tolerance) {
+      // Off by more than the tolerance: the hand moves by the difference (the shaft drawn taut
+      // passes it on either way), then watches again.
+      place_stage_ = PlaceStage::kAdjust;
+      const double off = mean > 0.0 ? mean - near : mean + near;
+      place_limit_ = depth_[L] + std::clamp(off, -kMostAdjust, kMostAdjust);
+      still_watches_ = 0;
+    } else {
+      watch();  // within the tolerance: once more with the hand still
     }
     return;
   }
-  placed_since_ = -1.0;
+  // Past the middle: once there, drawn back.
+  if (remaining <= -past) {
+    place_stage_ = PlaceStage::kDrawBack;
+    draw_from_ = depth_[L];
+    return;
+  }
   // Stuck (a lesion the catheter does not cross, a guide it pushes out): the hand gives no more
   // than max_slack of insertion without the markers moving on, then gives up.
   if (progress_ > best_progress_ + kProgressStep) {
@@ -468,10 +541,10 @@ void Autopilot::place(const SimModel& md, const SimState& st, const AutopilotPha
   // At the approach speed once out of the guide in the coronary (the last kApproach of the
   // route), slower still over the last 10 mm; the command kept near the real depth (the catheter
   // may lag).
-  const double v = std::clamp(std::abs(remaining) / 10e-3, 0.2, 1.0) *
-                   (std::abs(remaining) > kPlaceApproach ? ph.speed : ph.approach_speed);
-  depth_[L] =
-      std::clamp(depth_[L] + std::clamp(remaining, -v * dt, v * dt), depth - 0.005, depth + 0.005);
+  const double to_go = remaining + past;
+  const double v = std::clamp(std::abs(to_go) / 10e-3, 0.2, 1.0) *
+                   (std::abs(to_go) > kPlaceApproach ? ph.speed : ph.approach_speed);
+  depth_[L] = std::clamp(depth_[L] + std::min(to_go, v * dt), depth - 0.005, depth + 0.005);
 }
 
 void Autopilot::command(const SimModel& md, const SimState& st, StepCommands& out) {
