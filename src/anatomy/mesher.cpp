@@ -464,8 +464,8 @@ void simplify(TriangleMesh& m, const PieceGrid& field, const std::vector<double>
       int against = 0;
       for (int e = 0; e < 3; ++e)
         for (int s : vt[tr[e]])
-          if (s != t && std::find(m.triangles[s].begin(), m.triangles[s].end(),
-                                  tr[(e + 1) % 3]) != m.triangles[s].end()) {
+          if (s != t && std::find(m.triangles[s].begin(), m.triangles[s].end(), tr[(e + 1) % 3]) !=
+                            m.triangles[s].end()) {
             up += unit_normal(s);
             against += unit_normal(s).dot(unit_normal(t)) < 0.0;
           }
