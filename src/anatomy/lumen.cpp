@@ -25,7 +25,7 @@ using internal::Piece;
 using internal::PieceGrid;
 
 // Bump when the mesher changes, so that old cache files are not reused.
-constexpr std::uint32_t kMesherVersion = 2;
+constexpr std::uint32_t kMesherVersion = 4;
 
 // ---------------------------------------------------------------------------------------------
 // Plan

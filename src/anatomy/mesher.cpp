@@ -153,13 +153,59 @@ TriangleMesh marching_tetrahedra(const PieceGrid& field, double h) {
   return m;
 }
 
+namespace {
+
+// Newton steps from x onto the exact surface, at most max_move each.
+Vec3 onto_surface(const PieceGrid& field, Vec3 x, double max_move) {
+  for (int it = 0; it < 4; ++it) {
+    const PieceGrid::Result r = field.eval(x);
+    if (r.piece < 0 || std::abs(r.f) < 1e-12) break;
+    x -= std::clamp(r.f, -max_move, max_move) * r.grad;
+  }
+  return x;
+}
+
+}  // namespace
+
 void project_to_surface(TriangleMesh& m, const PieceGrid& field, double max_move) {
-  for (Vec3& v : m.vertices) {
-    for (int it = 0; it < 4; ++it) {
-      const PieceGrid::Result r = field.eval(v);
-      if (r.piece < 0 || std::abs(r.f) < 1e-12) break;
-      v -= std::clamp(r.f, -max_move, max_move) * r.grad;
-    }
+  const std::vector<Vec3> start = m.vertices;
+  for (Vec3& v : m.vertices) v = onto_surface(field, v, max_move);
+  // Where pieces meet in a crease, the nearest piece's gradient can take neighbouring vertices
+  // across each other onto the two tubes, turning a triangle over: a flap folded onto its
+  // neighbour, which reads as wall behind a point inside the lumen. The level set's own triangles
+  // are never turned over, so a vertex of a triangle that turned (normal more than 90 degrees
+  // from its level-set normal) goes back toward its level-set place, half the remaining way each
+  // round, until none of its triangles is turned.
+  const int nt = m.num_triangles();
+  auto normal = [&](const std::vector<Vec3>& x, const std::array<int, 3>& t) {
+    return Vec3((x[t[1]] - x[t[0]]).cross(x[t[2]] - x[t[0]]));
+  };
+  auto turned = [&](int t) {
+    const auto& tr = m.triangles[t];
+    return normal(m.vertices, tr).dot(normal(start, tr)) <= 0.0;
+  };
+  std::vector<int> bad;
+  for (int t = 0; t < nt; ++t)
+    if (turned(t)) bad.push_back(t);
+  if (bad.empty()) return;
+  std::vector<std::vector<int>> vt(m.vertices.size());
+  for (int t = 0; t < nt; ++t)
+    for (int v : m.triangles[t]) vt[v].push_back(t);
+  for (int round = 0; round < 8 && !bad.empty(); ++round) {
+    std::vector<int> verts;
+    for (int t : bad)
+      for (int v : m.triangles[t]) verts.push_back(v);
+    std::sort(verts.begin(), verts.end());
+    verts.erase(std::unique(verts.begin(), verts.end()), verts.end());
+    for (int v : verts) m.vertices[v] = 0.5 * (m.vertices[v] + start[v]);
+    if (round == 6)  // the last round puts them back on the level set
+      for (int v : verts) m.vertices[v] = start[v];
+    bad.clear();
+    for (int v : verts)
+      for (int t : vt[v])
+        if (turned(t)) bad.push_back(t);
+    std::sort(bad.begin(), bad.end());
+    bad.erase(std::unique(bad.begin(), bad.end()), bad.end());
   }
 }
 
@@ -272,19 +318,32 @@ void simplify(TriangleMesh& m, const PieceGrid& field, const std::vector<double>
         }
     return n;
   };
+  // How a triangle faces the lumen: the cosine between its normal and the exact surface's inward
+  // normal (-grad f) at its centroid; 1 where no piece reaches it.
+  auto facing = [&](const Vec3& a, const Vec3& b, const Vec3& c) {
+    const Vec3 n = (b - a).cross(c - a);
+    const auto r = field.eval((a + b + c) / 3.0);
+    return r.piece < 0 || n.norm() == 0.0 ? 1.0 : n.normalized().dot(-r.grad);
+  };
   // Boundary vertices (open ends, cut circles) stay: their open fan has one more neighbour than
   // triangles.
   for (int v = 0; v < nv; ++v)
     locked[v] = !vt[v].empty() && count_neighbours(v) != static_cast<int>(vt[v].size());
-  // Collapse u into v (v keeps its position, so every vertex stays on the exact surface).
-  auto try_collapse = [&](int u, int v) {
-    if (locked[u]) return false;
-    // Link condition (Dey et al. 1999): u and v share exactly the two vertices opposite the edge,
-    // which keeps the surface a manifold.
+  // Collapse u into v (v keeps its position, so every vertex stays on the exact surface). To
+  // untangle, fewer of the triangles around u may face away from the lumen after the collapse
+  // than before (the new triangles still within the error bound of the surface and the longest
+  // edge), and an edge of the boundary may go (a cut circle's vertices out of order). To
+  // remove a triangle turned against all its neighbours, whose own normal is `up`, the new
+  // triangles must face along `up` and no more of them away from the lumen.
+  auto try_collapse = [&](int u, int v, bool untangle = false, const Vec3& up = Vec3::Zero()) {
+    // Link condition (Dey et al. 1999): u and v share exactly the vertices opposite the edge (two
+    // inside, one on the boundary), which keeps the surface a manifold.
     int shared_tris = 0;
     for (int t : vt[u])
       for (int w : m.triangles[t]) shared_tris += w == v;
-    if (shared_tris != 2) return false;
+    const bool boundary_edge = untangle && locked[u] && locked[v] && shared_tris == 1;
+    if (locked[u] && !boundary_edge) return false;
+    if (shared_tris != (boundary_edge ? 1 : 2)) return false;
     count_neighbours(u);  // marks u's neighbours with `stamp`
     int common = 0;
     for (int t : vt[v])
@@ -293,15 +352,17 @@ void simplify(TriangleMesh& m, const PieceGrid& field, const std::vector<double>
           mark[w] = -1;  // count each once
           ++common;
         }
-    if (common != 2) return false;
+    if (common != shared_tris) return false;
     const double err = std::min(vertex_error[u], vertex_error[v]);
     const double max_edge = std::min(vertex_max_edge[u], vertex_max_edge[v]);
     const Vec3& pv = m.vertices[v];
     double worst_old = 1.0;
+    int turned_old = 0, turned_new = 0;
     for (int t : vt[u]) {
       const auto& tr = m.triangles[t];
-      worst_old =
-          std::min(worst_old, quality(m.vertices[tr[0]], m.vertices[tr[1]], m.vertices[tr[2]]));
+      const Vec3 &a = m.vertices[tr[0]], &b = m.vertices[tr[1]], &c = m.vertices[tr[2]];
+      worst_old = std::min(worst_old, quality(a, b, c));
+      if (untangle) turned_old += facing(a, b, c) <= 0.0;
     }
     for (int t : vt[u]) {
       const auto& tr = m.triangles[t];
@@ -315,8 +376,13 @@ void simplify(TriangleMesh& m, const PieceGrid& field, const std::vector<double>
       const Vec3 n_old = (p[1] - p[0]).cross(p[2] - p[0]);
       const Vec3 n_new = (q[1] - q[0]).cross(q[2] - q[0]);
       if (n_new.norm() <= 1e-12 * (q[1] - q[0]).squaredNorm()) return false;
-      if (n_new.normalized().dot(n_old.normalized()) < 0.3) return false;  // no folds
-      if (quality(q[0], q[1], q[2]) < std::min(0.2, worst_old)) return false;
+      if (untangle) {
+        if (!up.isZero() && n_new.dot(up) <= 0.0) return false;
+        turned_new += facing(q[0], q[1], q[2]) <= 0.0;
+      } else {
+        if (n_new.normalized().dot(n_old.normalized()) < 0.3) return false;  // no folds
+        if (quality(q[0], q[1], q[2]) < std::min(0.2, worst_old)) return false;
+      }
       // Distance to the exact surface at the centroid and edge midpoints; the normal must agree
       // with the surface's (into the lumen is -grad f).
       // The edge opposite v is unchanged; sample the centroid and the two new edges.
@@ -331,9 +397,10 @@ void simplify(TriangleMesh& m, const PieceGrid& field, const std::vector<double>
       for (const Vec3& x : samples) {
         const auto r = field.eval(x);
         if (std::abs(r.f) > err) return false;
-        if (r.piece >= 0 && n_new.normalized().dot(-r.grad) < 0.5) return false;
+        if (!untangle && r.piece >= 0 && n_new.normalized().dot(-r.grad) < 0.5) return false;
       }
     }
+    if (untangle && turned_new >= turned_old + (up.isZero() ? 0 : 1)) return false;
     // Apply: triangles on the edge die, the others move from u to v.
     for (int t : vt[u])
       for (int w : m.triangles[t]) ++version[w];
@@ -376,6 +443,41 @@ void simplify(TriangleMesh& m, const PieceGrid& field, const std::vector<double>
       }
     }
     if (limit >= longest) break;
+  }
+  // Untangle: where pieces meet in a crease, a few triangles can stay turned against the surface
+  // (a flap folded onto its neighbour, which reads as wall behind a point inside the lumen). Each
+  // loses one of its edges if fewer triangles around it then face away from the lumen. Across a
+  // crease the surface's normal at a centroid can be the other tube's; there, a triangle turned
+  // against all three of its neighbours is taken as turned.
+  auto unit_normal = [&](int t) {
+    const auto& tr = m.triangles[t];
+    const Vec3 n =
+        (m.vertices[tr[1]] - m.vertices[tr[0]]).cross(m.vertices[tr[2]] - m.vertices[tr[0]]);
+    return Vec3(n.norm() > 0.0 ? Vec3(n.normalized()) : Vec3::Zero());
+  };
+  for (int round = 0; round < 4; ++round) {
+    bool changed = false;
+    for (int t = 0; t < m.num_triangles(); ++t) {
+      if (!tri_alive[t]) continue;
+      const auto tr = m.triangles[t];
+      Vec3 up = Vec3::Zero();
+      int against = 0;
+      for (int e = 0; e < 3; ++e)
+        for (int s : vt[tr[e]])
+          if (s != t && std::find(m.triangles[s].begin(), m.triangles[s].end(), tr[(e + 1) % 3]) !=
+                            m.triangles[s].end()) {
+            up += unit_normal(s);
+            against += unit_normal(s).dot(unit_normal(t)) < 0.0;
+          }
+      if (against < 3) up.setZero();
+      if (up.isZero() && facing(m.vertices[tr[0]], m.vertices[tr[1]], m.vertices[tr[2]]) >= 0.0)
+        continue;
+      for (int e = 0; e < 3 && tri_alive[t]; ++e) {
+        const int a = tr[e], b = tr[(e + 1) % 3];
+        changed |= try_collapse(a, b, true, up) || try_collapse(b, a, true, up);
+      }
+    }
+    if (!changed) break;
   }
   std::vector<std::array<int, 3>> out;
   for (int t = 0; t < m.num_triangles(); ++t)
