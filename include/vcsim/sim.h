@@ -71,8 +71,9 @@ struct Landmark {
 // over its wire), other instruments hold. kWithdraw: `instrument` is pulled back to `depth`
 // (0 = out of the patient), or to `depth` behind the depth of `relative_to`. kInject: the syringe
 // gives `flow` for `duration` s. kWait: nothing for `duration` s. kPlace: `instrument` (a balloon
-// or stent catheter on its wire) is advanced until the middle of its two markers lies on the middle
-// of lesion `lesion`, as seen along the route, within `tolerance`. kInflate: the indeflator ramps
+// or stent catheter on its wire) is advanced past lesion `lesion` and drawn back until the middle
+// of its two markers lies on the lesion's middle, as seen along the route over a beat, within
+// `tolerance` (Autopilot::place). kInflate: the indeflator ramps
 // to `pressure` over `ramp` s and holds it `duration` s. kDeflate: no pressure for `duration` s.
 // kAdd: `added` is brought into the scene (outside the patient, at the sheath); kRemove:
 // `instrument`, withdrawn by an earlier phase, leaves it (docs/scenarios.md, "Instrument
