@@ -88,7 +88,10 @@ class RunDisplay : public RunObserver {
       std::cerr << "run: t = " << sim.time() << " s: exchange: " << describe(change) << "\n";
   }
   void after_step(const Simulator& sim) override {
-    if (sim.metrics().escape_steps > escape_steps_) report_escapes(sim);
+    for (const std::string& line : escapes_.fresh(sim)) {
+      if (bar_) std::fprintf(stderr, "\n");
+      std::cerr << "run: ESCAPE: " << line << "\n";
+    }
     if (film_) film_->after_step(sim);
     if (force_log_) force_log_->after_step(sim);
     if (bar_ && sim.metrics().steps % 50 == 0) {
@@ -104,19 +107,6 @@ class RunDisplay : public RunObserver {
   void done() {
     if (bar_) std::fprintf(stderr, "\n");
   }
-  // An instrument's first escape, once per instrument (by name: an exchange keeps it).
-  void report_escapes(const Simulator& sim) {
-    escape_steps_ = sim.metrics().escape_steps;
-    for (int i = 0; i < sim.num_instruments(); ++i) {
-      const EscapeRecord& e = sim.metrics().escapes[static_cast<std::size_t>(i)];
-      const std::string& name = sim.model().instrument_name(i);
-      if (e.steps == 0 || std::find(escaped_.begin(), escaped_.end(), name) != escaped_.end())
-        continue;
-      escaped_.push_back(name);
-      if (bar_) std::fprintf(stderr, "\n");
-      std::cerr << "run: ESCAPE: " << describe_escape(sim.model(), i, e) << "\n";
-    }
-  }
 
  private:
   const RunOptions& o_;
@@ -127,8 +117,7 @@ class RunDisplay : public RunObserver {
   bool bar_;
   double loop0_;
   std::string last_status_;
-  std::int64_t escape_steps_ = 0;
-  std::vector<std::string> escaped_;  // instruments whose escape was reported
+  EscapeReporter escapes_;
 };
 
 // True when one of the scenario's instruments, or one the timeline adds, is a balloon catheter

@@ -55,18 +55,9 @@ class SoakConsole : public RunObserver {
   }
   void after_step(const Simulator& sim) override {
     if (log_) log_->after_step(sim);
+    for (const std::string& line : escapes_.fresh(sim))
+      std::cerr << "soak: ESCAPE: " << line << std::endl;
     const SimMetrics& m = sim.metrics();
-    if (m.escape_steps != escape_steps_) {
-      escape_steps_ = m.escape_steps;
-      reported_.resize(static_cast<std::size_t>(sim.num_instruments()), 0);
-      for (int i = 0; i < sim.num_instruments(); ++i) {
-        const auto k = static_cast<std::size_t>(i);
-        if (m.escapes[k].steps == 0 || reported_[k]) continue;
-        reported_[k] = 1;
-        const EscapeRecord& e = m.escapes[k];
-        std::cerr << "soak: ESCAPE: " << describe_escape(sim.model(), i, e) << std::endl;
-      }
-    }
     if (progress_ && sim.time() >= next_minute_) {
       next_minute_ += 60.0;
       const double wall = (now_us() - t0_) * 1e-6;
@@ -83,8 +74,7 @@ class SoakConsole : public RunObserver {
   bool progress_;
   double t0_;
   double next_minute_ = 60.0;
-  std::int64_t escape_steps_ = 0;
-  std::vector<char> reported_;  // (instrument) its first escape was reported
+  EscapeReporter escapes_;
 };
 
 nlohmann::json to_json(const SoakReport& r, const std::string& patient, const SimModel& md) {

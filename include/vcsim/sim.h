@@ -695,6 +695,18 @@ struct RunOutcome {
 // One line saying where instrument i's first escape was (SimMetrics::escapes): "t = 1.23 s:
 // 'wire' node 250 left the vessel through the open end of 'main' (start), 3.1 mm beyond it".
 std::string describe_escape(const SimModel& model, int i, const EscapeRecord& e);
+// Each instrument's first escape, once: after a step, fresh() gives the describe_escape lines of
+// the instruments seen outside the vessel for the first time. Keyed by name, so an instrument
+// exchanged for another of the same name is not reported again. The consoles of `vcsim run`
+// and `vcsim soak` print them as they happen.
+class EscapeReporter {
+ public:
+  std::vector<std::string> fresh(const Simulator& sim);
+
+ private:
+  std::int64_t escape_steps_ = 0;
+  std::vector<std::string> reported_;  // names of the instruments whose escape was reported
+};
 RunOutcome run_outcome(const Simulator& sim, const RunReport& report);
 
 // DIR/metrics.json (docs/scenarios.md, "metrics.json"): the run's figures, instruments, landmarks,

@@ -1,5 +1,6 @@
 // A run's report: metrics.json (docs/scenarios.md), the summary printed at the end of `vcsim
 // run`, and the per-step force log.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -83,6 +84,22 @@ std::string describe_escape(const SimModel& md, int i, const EscapeRecord& e) {
   if (e.exit < 0) return s + buf + " behind the wall" + near;
   const std::string where = escape_where(md, e.exit);
   return s + buf + (where.rfind("cap", 0) == 0 ? " behind the " : " beyond the ") + where + near;
+}
+
+std::vector<std::string> EscapeReporter::fresh(const Simulator& sim) {
+  std::vector<std::string> lines;
+  const SimMetrics& m = sim.metrics();
+  if (m.escape_steps == escape_steps_) return lines;
+  escape_steps_ = m.escape_steps;
+  for (int i = 0; i < sim.num_instruments(); ++i) {
+    const EscapeRecord& e = m.escapes[static_cast<std::size_t>(i)];
+    const std::string& name = sim.model().instrument_name(i);
+    if (e.steps == 0 || std::find(reported_.begin(), reported_.end(), name) != reported_.end())
+      continue;
+    reported_.push_back(name);
+    lines.push_back(describe_escape(sim.model(), i, e));
+  }
+  return lines;
 }
 
 RunOutcome run_outcome(const Simulator& sim, const RunReport& r) {
