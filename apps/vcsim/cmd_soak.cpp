@@ -64,8 +64,8 @@ class SoakConsole : public RunObserver {
       std::cout << std::fixed << std::setprecision(0) << "  " << sim.time() / 60.0
                 << " min simulated in " << wall << " s (" << std::setprecision(2)
                 << (wall > 0 ? sim.time() / wall : 0.0) << " x real time); resident "
-                << resident_megabytes() << " MB; rollbacks " << m.rollbacks << "; escape steps "
-                << m.escape_steps << std::endl;
+                << resident_megabytes() << " MB; rollbacks " << m.rollbacks << "; runaway steps "
+                << m.runaway_steps << "; escape steps " << m.escape_steps << std::endl;
     }
   }
 
@@ -103,6 +103,8 @@ nlohmann::json to_json(const SoakReport& r, const std::string& patient, const Si
           {"wall_s", r.wall},
           {"realtime_factor", r.wall > 0 ? r.simulated / r.wall : 0.0},
           {"rollbacks", r.rollbacks},
+          {"runaway_steps", r.runaway_steps},
+          {"calmed_steps", r.calmed_steps},
           {"finite", r.finite},
           {"resident_start_mb", r.resident_start_mb},
           {"resident_after_first_minute_mb", r.resident_after_first_minute_mb},
@@ -143,6 +145,7 @@ int cmd_soak(const SoakOptions& o) {
     if (!o.quiet) {
       std::cout << std::fixed << std::setprecision(2) << "  " << r.steps << " steps, "
                 << r.simulated << " s in " << r.wall << " s; rollbacks " << r.rollbacks
+                << "; runaway steps " << r.runaway_steps << " (" << r.calmed_steps << " from rest)"
                 << ", finite " << (r.finite ? "yes" : "NO") << "; resident "
                 << r.resident_after_first_minute_mb << " MB after 1 min, " << r.resident_end_mb
                 << " MB at the end (" << std::setprecision(3) << 100 * r.memory_growth() << " %)\n";

@@ -205,6 +205,10 @@ struct Scenario {
   // suddenly (physics.md 5.4). 0: never.
   double fine_step_jump = 0.3;
   double fine_step_hold = 0.02;
+  // A step in which a node of an inserted instrument moved faster than runaway_speed (m/s) is
+  // taken again split finer, and if a node still runs away, from rest (SubStepSettings::runaway,
+  // physics.md 5.4): counted in metrics.runaway_steps and calmed_steps. 0: never.
+  double runaway_speed = 30.0;
   std::vector<ScenarioInstrument> instruments;
   // How each lesion of the anatomy takes a balloon (one per lesion; empty: the defaults).
   std::vector<LesionMechanics> lesions;
@@ -353,6 +357,10 @@ struct SimMetrics {
   int rollbacks = 0;                      // steps that produced a non-finite value and were undone
   // Steps taken again split after a sudden change of a hand force (Scenario::fine_step_jump).
   std::int64_t resplit_steps = 0;
+  // Steps in which a node ran away (Scenario::runaway_speed), and of them those taken again from
+  // rest because a finer split did not calm it.
+  std::int64_t runaway_steps = 0;
+  std::int64_t calmed_steps = 0;
   std::vector<EscapeRecord> escapes;  // (instrument)
   std::int64_t escape_steps = 0;      // steps in which any instrument was seen outside the vessel
 };
@@ -912,7 +920,8 @@ struct SoakReport {
   double simulated = 0.0;  // s
   double wall = 0.0;       // s
   int rollbacks = 0;       // steps that produced a non-finite value and were undone
-  bool finite = true;      // the final state holds finite values only
+  std::int64_t runaway_steps = 0, calmed_steps = 0;  // SimMetrics' counts
+  bool finite = true;                                // the final state holds finite values only
   double resident_start_mb = 0.0, resident_after_first_minute_mb = 0.0, resident_end_mb = 0.0;
   std::vector<double> resident_samples_mb;  // each simulated minute
   // The hand force's smoothness: steps more than 1 N off the median of their 11 neighbours.

@@ -180,6 +180,11 @@ struct SubStepSettings {
   // `hold` (s): a scaled mass stopped or let go suddenly. 0: never.
   double jump = 0.0;
   double hold = 0.02;
+  // A step in which a node of an instrument in the body moved faster than `runaway` (m/s), far
+  // beyond what a hand and a beating wall can drive (they move at most about 1 m/s), is a step
+  // the solver did not converge on: it is taken again split at least twice as finely, and if a
+  // node still runs away, taken again from rest (every velocity zeroed). 0: never.
+  double runaway = 0.0;
 };
 
 struct SolverModel {
@@ -292,6 +297,8 @@ struct StepInfo {
   int split = 1;             // fine steps it was split into
   bool resplit = false;      // taken again, split finer, after a sudden load
   bool rolled_back = false;  // it produced a non-finite value: undone, instruments held still
+  bool runaway = false;      // a node ran away (SubStepSettings::runaway): taken again finer
+  bool calmed = false;       // ... and still ran away: taken again from rest
 };
 
 namespace internal {

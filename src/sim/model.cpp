@@ -179,6 +179,7 @@ void build_instruments(SimModel& md, const std::string& src) {
   sv.substeps.travel = sc.fine_step_travel;
   sv.substeps.jump = sc.fine_step_jump;
   sv.substeps.hold = sc.fine_step_hold;
+  sv.substeps.runaway = sc.runaway_speed;
   sv.validate(src);
   md.landmark_ids.clear();
   for (const Landmark& l : sc.landmarks)

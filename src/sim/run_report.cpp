@@ -187,6 +187,8 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
   j["escape_steps"] = m.escape_steps;
   j["stopped_on_escape"] = r.loop.stopped_on_escape;
   j["resplit_steps"] = m.resplit_steps;
+  j["runaway_steps"] = m.runaway_steps;
+  j["calmed_steps"] = m.calmed_steps;
   j["frames"] = r.frames;
   j["fluoroscopy_time_s"] = r.fluoroscopy_time >= 0.0 ? r.fluoroscopy_time : r.frames * frame_dt;
   j["contrast_volume_ml"] = sim.state().contrast.volume * 1e6;

@@ -322,6 +322,7 @@ Scenario parse_scenario(std::string_view text, const std::string& src,
   sc.fine_step_travel = f.in_range_or("fine_step_travel_um", 0.0, 1000.0, 25.0) * kUm;
   sc.fine_step_jump = f.nonnegative_or("fine_step_jump_n", 0.3);
   sc.fine_step_hold = f.in_range_or("fine_step_hold_ms", 0.0, 1000.0, 20.0) * 1e-3;
+  sc.runaway_speed = f.in_range_or("runaway_speed_m_s", 0.0, 1000.0, 30.0);
 
   const Json& insts = f.array("instruments");
   if (insts.empty()) f.fail("instruments", "expected at least one instrument");

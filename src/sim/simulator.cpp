@@ -113,6 +113,11 @@ std::uint64_t SimState::hash() const {
   h.add_value(m.next_landmark_check);
   h.add_value(m.rollbacks);
   h.add_value(m.resplit_steps);
+  // Only when there were any: the hashes pinned before the guard stay valid.
+  if (m.runaway_steps > 0) {
+    h.add_value(m.runaway_steps);
+    h.add_value(m.calmed_steps);
+  }
   if (m.escape_steps > 0) {
     h.add_value(m.escape_steps);
     for (const EscapeRecord& e : m.escapes) {
@@ -375,6 +380,8 @@ void sim_step(const SimModel& md, SimState& st, SimWorkspace& ws, const StepComm
                                     prof ? &prof->instruments : nullptr);
   st.metrics.resplit_steps += info.resplit ? 1 : 0;
   st.metrics.rollbacks += info.rolled_back ? 1 : 0;
+  st.metrics.runaway_steps += info.runaway ? 1 : 0;
+  st.metrics.calmed_steps += info.calmed ? 1 : 0;
   const double t2 = tick();
   // 3. procedure: stents released, gripped, carried
   if (!md.procedure.balloons.empty())

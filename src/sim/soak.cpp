@@ -186,6 +186,8 @@ SoakReport soak(Simulator& sim, const SoakSettings& settings, RunObserver* obser
   rep.simulated = sim.time();
   rep.wall = (now_us() - t0) * 1e-6;
   rep.rollbacks = sim.metrics().rollbacks;
+  rep.runaway_steps = sim.metrics().runaway_steps;
+  rep.calmed_steps = sim.metrics().calmed_steps;
   rep.resident_end_mb = resident_megabytes();
   rep.finite = sim.state().hash() != 0;
   for (int i = 0; i < sim.num_instruments(); ++i) {

@@ -192,6 +192,20 @@ void restore_start(SolverState& st, const SolverScratch& s) {
   }
 }
 
+// True when a node of an instrument in the body moved more than `limit` (m) over the step.
+bool ran_away(const SolverState& st, const SolverScratch& s, double limit) {
+  const double limit2 = limit * limit;
+  for (std::size_t i = 0; i < st.instruments.size(); ++i) {
+    const InstrumentState& in = st.instruments[i];
+    if (in.parked) continue;
+    const std::vector<Vec3>& x = in.rod.x;
+    const std::vector<Vec3>& x0 = s.backup_rod[i].x;
+    for (std::size_t k = 0; k < x.size(); ++k)
+      if ((x[k] - x0[k]).squaredNorm() > limit2) return true;
+  }
+  return false;
+}
+
 }  // namespace
 
 // --- model ---------------------------------------------------------------------------------------
@@ -270,6 +284,7 @@ void SolverModel::validate(const std::string& source) const {
   require_positive(substeps.travel, source, "substeps.travel");
   require_nonnegative(substeps.jump, source, "substeps.jump");
   require_nonnegative(substeps.hold, source, "substeps.hold");
+  require_nonnegative(substeps.runaway, source, "substeps.runaway");
 }
 
 std::uint64_t SolverModel::hash() const {
@@ -299,6 +314,7 @@ std::uint64_t SolverModel::hash() const {
   h.add_value(substeps.travel);
   h.add_value(substeps.jump);
   h.add_value(substeps.hold);
+  h.add_value(substeps.runaway);
   return h.value();
 }
 
@@ -546,6 +562,27 @@ StepInfo solver_step(const SolverModel& md, SolverState& st, SolverWorkspace& ws
       use_split(md, st, split_for(md, st, hand_speed(md, st, cmds)));
       advance(md, st, s, wall, cmds, prof);
       info.resplit = true;
+    }
+  }
+  // A node that ran away (far faster than any hand or wall moves it): the step is taken again
+  // split finer, and if a node still runs away, from rest (its kinetic energy is taken out).
+  if (sub.runaway > 0.0 && ran_away(st, s, sub.runaway * md.dt())) {
+    info.runaway = true;
+    if (st.split < md.max_split()) {
+      restore_start(st, s);
+      st.hold_until = st.time + sub.hold;
+      st.held_split = std::min(md.max_split(), std::max(2 * st.split, threshold_split(md)));
+      use_split(md, st, split_for(md, st, hand_speed(md, st, cmds)));
+      advance(md, st, s, wall, cmds, prof);
+    }
+    if (ran_away(st, s, sub.runaway * md.dt())) {
+      restore_start(st, s);
+      for (InstrumentState& in : st.instruments) {
+        for (Vec3& v : in.rod.v) v.setZero();
+        for (Vec3& w : in.rod.omega) w.setZero();
+      }
+      advance(md, st, s, wall, cmds, prof);
+      info.calmed = true;
     }
   }
   bool finite = true;

@@ -69,6 +69,7 @@ TEST(Scenario, UnitsAreConverted) {
   EXPECT_DOUBLE_EQ(sc.fine_step_travel, 25e-6);
   EXPECT_DOUBLE_EQ(sc.fine_step_jump, 0.3);
   EXPECT_DOUBLE_EQ(sc.fine_step_hold, 0.02);
+  EXPECT_DOUBLE_EQ(sc.runaway_speed, 30.0);
   const Scenario split = parse_scenario(edit("\"name\": \"t\"",
                                              "\"name\": \"t\", \"fine_step_travel_um\": 40, "
                                              "\"fine_step_jump_n\": 0, \"fine_step_hold_ms\": 5"),
@@ -146,6 +147,8 @@ TEST(Scenario, BadInputNamesTheField) {
                "fine_step_jump_n");
   expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"fine_step_hold_ms\": 2000"),
                "fine_step_hold_ms");
+  expect_error(edit("\"name\": \"t\"", "\"name\": \"t\", \"runaway_speed_m_s\": -1"),
+               "runaway_speed_m_s");
   // The procedure's keys: a pressure out of range, a place without an instrument, lesion
   // mechanics and targets out of range, an over naming no instrument.
   expect_error(edit("{\"action\": \"navigate\"",
