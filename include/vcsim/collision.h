@@ -291,6 +291,10 @@ struct WallExit {
   Vec3 outward = Vec3::Zero();  // unit, out of the vessel
   double radius = 0.0;          // m
   bool closed = false;
+  // The end the instruments come in by (a built-in or tree lumen's access end): open for the
+  // instruments' held part and the sheath on its axis, a cut end like the others for free nodes,
+  // which meet its plane as a wall (physics.md 6.3).
+  bool access = false;
 };
 
 // The openings of a mesh as exits, one per boundary loop (MeshReport::boundary_loops, vertex

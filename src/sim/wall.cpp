@@ -139,7 +139,8 @@ void make_exits(const VesselTree& tree, const CardiacMotion* motion, ProcedureWa
     const int open = sheath ? access_end(tree, *sheath) : -1;
     for (std::size_t k = 0; k < ends.size(); ++k) {
       const OpenEnd& e = ends[k];
-      add({e.centre, e.outward, e.radius, sheath != nullptr && static_cast<int>(k) != open});
+      const bool access = static_cast<int>(k) == open;
+      add({e.centre, e.outward, e.radius, sheath != nullptr && !access, access});
     }
     return;
   }

@@ -147,6 +147,34 @@ void add_sheath_contacts(const Inst& in, const SolverSettings& set) {
 // clearance), so it cannot pass this band unseen; beyond it the plane's far side may hold other
 // vessels.
 constexpr double kExitBand = 20e-3;
+
+// The access end's plane as a wall for the free nodes (physics.md 6.3): the vessel goes on beyond
+// it in a body, as beyond the other cut ends, whose caps are part of the lumen's mesh. This end
+// has no cap because the held part of each instrument and the sheath's axis pass through it; the
+// nodes there (held, in the sheath or outside the body) are not free and do not meet it.
+void add_access_end_contacts(const Inst& in, std::span<const WallExit> exits,
+                             const SolverSettings& set) {
+  const RodModel& md = in.model();
+  const RodState& st = in.rod();
+  InstrumentScratch& w = *in.w;
+  for (const WallExit& ex : exits) {
+    if (!ex.access) continue;
+    const int first = in.driven() ? in.drive().first_free : 0;
+    for (int i = first; i < md.n; ++i) {
+      if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i] || in.held(i) || in_sheath(in, i)) continue;
+      const Vec3 rel = st.x[i] - ex.centre;
+      const double beyond = rel.dot(ex.outward);
+      const double r = node_radius(md, i);
+      const double depth = beyond + r;
+      const double reach = set.contact_margin + st.v[i].norm() * set.rod.dt;
+      // Near the plane only: a node far beyond it is elsewhere in the body.
+      if (depth <= -reach || beyond > r + kExitBand) continue;
+      if ((rel - beyond * ex.outward).squaredNorm() >= ex.radius * ex.radius) continue;
+      w.contacts.push_back({i, -ex.outward, depth, 0.0, Vec3::Zero(), Vec3::Zero()});
+    }
+  }
+}
+
 // A node in contact meeting a face whose normal is within about 25 degrees of its contact's
 // (cosine above this) meets the same wall, which already holds it (catch_late_movers).
 constexpr double kSameFace = 0.9;
@@ -825,6 +853,7 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
     if (in.parked()) continue;
     if (collide) {
       detect_contacts(in, *wall, exits, set, &p);
+      add_access_end_contacts(in, exits, set);
     } else {
       in.w->contacts.clear();
     }

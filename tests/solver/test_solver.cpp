@@ -456,6 +456,37 @@ TEST(Escape, ANodePushedOutOfAnOpenEndIsSeen) {
   EXPECT_LT(first.distance, r + 1.5e-3);
 }
 
+// The access end's plane is a wall for free nodes (physics.md 6.3): the rod above pushed on
+// against an end flagged as the access end is held at its plane (no node beyond it by more than
+// its radius, no escape) while the hand keeps pushing, and the wall force reaches the hand.
+TEST(Escape, TheAccessEndHoldsAFreeNodeLikeACap) {
+  const double length = 0.04, radius = 2.0e-3;
+  StraightTube tube(radius, length, /*cap=*/false);
+  RodDef d = test_rod(0.1, 60);
+  d.density = scaled_density(d, 1e-3);
+  test::Rig inst = test::driven(d, Sheath{}, ContactMaterial{0.0, 0.0}, 0.02);
+  SolverSettings s;
+  s.rod.dt = 1e-3;
+  s.rod.drag = 20.0;
+  StaticWall wall = tube.wall();
+  WallExit access{Vec3(0, 0, length), Vec3::UnitZ(), radius};
+  access.access = true;
+  wall.set_exits({access, {Vec3::Zero(), -Vec3::UnitZ(), radius}});
+  const double r = d.outer_radius;
+  const DriveCommand push{DriveCommand::Mode::kVelocity, 0.05, 0.0};
+  double farthest = -1.0, force = 0.0;
+  for (int k = 0; k < 600; ++k) {
+    inst.step(&wall, s, push);
+    EXPECT_LT(inst.ws.escape(0).node, 0) << "step " << k;
+    for (int i = inst.drive().first_free; i < inst.md().n; ++i)
+      farthest = std::max(farthest, inst.rod().x[i].z() - length);
+    force = inst.drive().axial_force;
+  }
+  EXPECT_LT(farthest, r) << "m beyond the access end's plane";
+  EXPECT_GT(farthest, -2 * r) << "the tip must have reached the plane";
+  EXPECT_GT(std::abs(force), 0.01) << "N: the hand feels the end";
+}
+
 // A rod at rest along a dead-end tube (radius 2 mm, 60 mm), its tip 0.5 mm short of the end's
 // cap, pushed in at 3 m/s from one step to the next (a hand faster than any drive lets through,
 // as a wave down a chain of scaled masses or a tip let go can be). Detection sees each node at
