@@ -419,18 +419,40 @@ TEST(Escape, ANodeBehindTheWallByMoreThanItsRadiusIsSeen) {
 // and before it is 1.5 mm further (a node is queried again after each ~0.6 mm of travel), and
 // never before. The tube's start is an exit too: the rod's part outside the body lies beyond
 // it, on the sheath's axis, and is not an escape.
-TEST(Escape, ANodePushedOutOfAnOpenEndIsSeen) {
-  const double length = 0.04, radius = 2.0e-3;
-  StraightTube tube(radius, length, /*cap=*/false);
-  RodDef d = test_rod(0.1, 60);
-  d.density = scaled_density(d, 1e-3);
+// The scene of the two tests below: a rod driven 20 mm into a tube (radius 2 mm, 40 mm) open at
+// both ends, both ends the wall's exits; the far end flagged as the access end or not.
+struct OpenEndTube {
+  static constexpr double length = 0.04, radius = 2.0e-3;
+  static RodDef rod() {
+    RodDef d = test_rod(0.1, 60);
+    d.density = scaled_density(d, 1e-3);
+    return d;
+  }
+  static SolverSettings settings() {
+    SolverSettings s;
+    s.rod.dt = 1e-3;
+    s.rod.drag = 20.0;
+    return s;
+  }
+  StraightTube tube{radius, length, /*cap=*/false};
+  RodDef d = rod();
   test::Rig inst = test::driven(d, Sheath{}, ContactMaterial{0.0, 0.0}, 0.02);
-  SolverSettings s;
-  s.rod.dt = 1e-3;
-  s.rod.drag = 20.0;
+  SolverSettings s = settings();
   StaticWall wall = tube.wall();
-  wall.set_exits(
-      {{Vec3(0, 0, length), Vec3::UnitZ(), radius}, {Vec3::Zero(), -Vec3::UnitZ(), radius}});
+  explicit OpenEndTube(bool far_end_is_access) {
+    WallExit far{Vec3(0, 0, length), Vec3::UnitZ(), radius};
+    far.access = far_end_is_access;
+    wall.set_exits({far, {Vec3::Zero(), -Vec3::UnitZ(), radius}});
+  }
+};
+
+TEST(Escape, ANodePushedOutOfAnOpenEndIsSeen) {
+  OpenEndTube sc(false);
+  const double length = sc.length;
+  const RodDef& d = sc.d;
+  test::Rig& inst = sc.inst;
+  const SolverSettings& s = sc.s;
+  StaticWall& wall = sc.wall;
   const double r = d.outer_radius;
   const DriveCommand push{DriveCommand::Mode::kVelocity, 0.05, 0.0};
   int seen_at = -1;
@@ -460,19 +482,12 @@ TEST(Escape, ANodePushedOutOfAnOpenEndIsSeen) {
 // against an end flagged as the access end is held at its plane (no node beyond it by more than
 // its radius, no escape) while the hand keeps pushing, and the wall force reaches the hand.
 TEST(Escape, TheAccessEndHoldsAFreeNodeLikeACap) {
-  const double length = 0.04, radius = 2.0e-3;
-  StraightTube tube(radius, length, /*cap=*/false);
-  RodDef d = test_rod(0.1, 60);
-  d.density = scaled_density(d, 1e-3);
-  test::Rig inst = test::driven(d, Sheath{}, ContactMaterial{0.0, 0.0}, 0.02);
-  SolverSettings s;
-  s.rod.dt = 1e-3;
-  s.rod.drag = 20.0;
-  StaticWall wall = tube.wall();
-  WallExit access{Vec3(0, 0, length), Vec3::UnitZ(), radius};
-  access.access = true;
-  wall.set_exits({access, {Vec3::Zero(), -Vec3::UnitZ(), radius}});
-  const double r = d.outer_radius;
+  OpenEndTube sc(true);
+  const double length = sc.length;
+  test::Rig& inst = sc.inst;
+  const SolverSettings& s = sc.s;
+  StaticWall& wall = sc.wall;
+  const double r = sc.d.outer_radius;
   const DriveCommand push{DriveCommand::Mode::kVelocity, 0.05, 0.0};
   double farthest = -1.0, force = 0.0;
   for (int k = 0; k < 600; ++k) {
