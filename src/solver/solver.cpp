@@ -547,6 +547,20 @@ StepInfo solver_step(const SolverModel& md, SolverState& st, SolverWorkspace& ws
   // least twice as finely, and that split held for a while. The contact coherence of the first
   // try is kept (it only decides which nodes are queried, and how wide).
   const SubStepSettings& sub = md.substeps;
+  auto retake_finer = [&] {
+    restore_start(st, s);
+    st.hold_until = st.time + sub.hold;
+    st.held_split = std::min(md.max_split(), std::max(2 * st.split, threshold_split(md)));
+    use_split(md, st, split_for(md, st, hand_speed(md, st, cmds)));
+    advance(md, st, s, wall, cmds, prof);
+  };
+  auto restore_at_rest = [&] {
+    restore_start(st, s);
+    for (InstrumentState& in : st.instruments) {
+      for (Vec3& v : in.rod.v) v.setZero();
+      for (Vec3& w : in.rod.omega) w.setZero();
+    }
+  };
   if (st.split < md.max_split() && sub.jump > 0.0) {
     bool sudden = false;
     for (std::size_t i = 0; i < n; ++i) {
@@ -556,11 +570,7 @@ StepInfo solver_step(const SolverModel& md, SolverState& st, SolverWorkspace& ws
                                                s.backup_drive[i].axial_force_raw) > sub.jump);
     }
     if (sudden) {
-      restore_start(st, s);
-      st.hold_until = st.time + sub.hold;
-      st.held_split = std::min(md.max_split(), std::max(2 * st.split, threshold_split(md)));
-      use_split(md, st, split_for(md, st, hand_speed(md, st, cmds)));
-      advance(md, st, s, wall, cmds, prof);
+      retake_finer();
       info.resplit = true;
     }
   }
@@ -568,19 +578,9 @@ StepInfo solver_step(const SolverModel& md, SolverState& st, SolverWorkspace& ws
   // split finer, and if a node still runs away, from rest (its kinetic energy is taken out).
   if (sub.runaway > 0.0 && ran_away(st, s, sub.runaway * md.dt())) {
     info.runaway = true;
-    if (st.split < md.max_split()) {
-      restore_start(st, s);
-      st.hold_until = st.time + sub.hold;
-      st.held_split = std::min(md.max_split(), std::max(2 * st.split, threshold_split(md)));
-      use_split(md, st, split_for(md, st, hand_speed(md, st, cmds)));
-      advance(md, st, s, wall, cmds, prof);
-    }
+    if (st.split < md.max_split()) retake_finer();
     if (ran_away(st, s, sub.runaway * md.dt())) {
-      restore_start(st, s);
-      for (InstrumentState& in : st.instruments) {
-        for (Vec3& v : in.rod.v) v.setZero();
-        for (Vec3& w : in.rod.omega) w.setZero();
-      }
+      restore_at_rest();
       advance(md, st, s, wall, cmds, prof);
       info.calmed = true;
     }
@@ -589,11 +589,7 @@ StepInfo solver_step(const SolverModel& md, SolverState& st, SolverWorkspace& ws
   for (const InstrumentState& in : st.instruments) finite = finite && finite_state(in.rod);
   if (!finite) {
     // Undo the step and hold the instruments still; the caller sees it in StepInfo.
-    restore_start(st, s);
-    for (InstrumentState& in : st.instruments) {
-      for (Vec3& v : in.rod.v) v.setZero();
-      for (Vec3& w : in.rod.omega) w.setZero();
-    }
+    restore_at_rest();
     for (internal::InstrumentScratch& w : s.inst) w.escape = NodeEscape{};
     info.rolled_back = true;
   }
