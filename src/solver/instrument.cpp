@@ -117,6 +117,12 @@ bool in_sheath(const Inst& in, int i) {
          in.model().node_s[i] - (in.model().length - in.drive().depth) <= in.im->sheath.length;
 }
 
+// A node the wall meets: not fixed, not in another instrument's lumen, not held by a balloon, not
+// in the introducer sheath (nor, so, held by the drive outside the body).
+bool free_node(const Inst& in, int i) {
+  return in.w->rod.inv_mass[i] != 0.0 && !in.w->sheathed[i] && !in.held(i) && !in_sheath(in, i);
+}
+
 // The introducer sheath (physics.md 6.2): a straight tube on the axis from the access point. Its
 // lumen holds the free nodes inside it like a wall (with the instrument's vessel friction); they
 // meet neither the vessel wall nor, through it, the tissue around the puncture. Without it the
@@ -161,7 +167,7 @@ void add_access_end_contacts(const Inst& in, std::span<const WallExit> exits,
     if (!ex.access) continue;
     const int first = in.driven() ? in.drive().first_free : 0;
     for (int i = first; i < md.n; ++i) {
-      if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i] || in.held(i) || in_sheath(in, i)) continue;
+      if (!free_node(in, i)) continue;
       const Vec3 rel = st.x[i] - ex.centre;
       const double beyond = rel.dot(ex.outward);
       const double r = node_radius(md, i);
@@ -228,7 +234,7 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
   s.wall_travel += wall_step;
   const int first = in.driven() ? in.drive().first_free : 0;
   for (int i = first; i < md.n; ++i) {
-    if (w.rod.inv_mass[i] == 0.0 || w.sheathed[i] || in.held(i) || in_sheath(in, i)) continue;
+    if (!free_node(in, i)) continue;
     const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt;
     if (s.clearance[i] > 0.0) {
       // How far the node has gone from where it was queried, and the wall toward it since (none
