@@ -858,6 +858,9 @@ class Autopilot {
   int placed_ = -1;          // the instrument the last place phase placed (watched while inflating)
   double place_goal_ = 0.0;  // m along the place route: the lesion's middle
   TreeLocation place_target_;  // the lesion's middle
+  // +1 where the route goes down the lesion's segment (its arc length growing), -1 where it goes
+  // up it (an access below the lesion in the same vessel or a branch of it)
+  int place_direction_ = 1;
   void place(const SimModel& model, const SimState& state, const AutopilotPhase& ph);
   double markers_remaining(const SimModel& model, const SimState& state, int instrument);
 };

@@ -161,12 +161,22 @@ void Autopilot::start_phase(const SimModel& md, const SimState& st) {
     // distance to go, and are pulled back), as far as the segment allows.
     const int seg = tree.lesions[static_cast<std::size_t>(lm.lesion)].segment;
     const double mid = 0.5 * (lm.span.s0 + lm.span.s1);
-    const double beyond = std::min(mid + kPlaceBeyond, segment_length(tree.segments[seg]));
+    // Which way the route runs through the lesion: from the segment's start (down it, as into a
+    // coronary from its ostium) or from its end (up it: an access below the lesion).
+    route_ = route(tree, tree.access, TreeLocation{seg, mid}, kSpacing);
+    place_direction_ = 1;
+    if (route_.size() >= 2) {
+      const TreeHit before =
+          locate_near(tree, route_[route_.size() - 2], TreeLocation{seg, mid}, 2.0 * kSpacing);
+      if (before.loc.segment == seg && before.loc.distance > mid) place_direction_ = -1;
+    }
+    const double beyond =
+        std::clamp(mid + place_direction_ * kPlaceBeyond, 0.0, segment_length(tree.segments[seg]));
     route_ = route(tree, tree.access, TreeLocation{seg, beyond}, kSpacing);
     route_s_.assign(route_.size(), 0.0);
     for (std::size_t k = 1; k < route_.size(); ++k)
       route_s_[k] = route_s_[k - 1] + (route_[k] - route_[k - 1]).norm();
-    place_goal_ = route_s_.back() - (beyond - mid);
+    place_goal_ = route_s_.back() - std::abs(beyond - mid);
     place_target_ = TreeLocation{seg, mid};
     progress_ = best_progress_ = 0.0;
     best_time_ = st.time();
@@ -438,7 +448,7 @@ double Autopilot::markers_remaining(const SimModel& md, const SimState& st, int 
   if (std::abs(along_route) > kPlaceBeyond) return along_route;
   const TreeHit hit = locate_near(md.tree, X, place_target_, 2.0 * kPlaceBeyond);
   if (hit.loc.segment == place_target_.segment && hit.outside < 0.0)
-    return place_target_.distance - hit.loc.distance;
+    return place_direction_ * (place_target_.distance - hit.loc.distance);
   return along_route;
 }
 

@@ -268,6 +268,68 @@ TEST(Stent, StaysWhereDeployedWhileTheBalloonAndWireArePulledBackThroughIt) {
   EXPECT_GT(std::abs(c.middle() - before), 1e-3) << "an inflated balloon carries it";
 }
 
+// The autopilot's `place` (docs/scenarios.md) in the small tube: the wire led 30 mm past the
+// 60 % lesion's middle first (position commands), then the stent system brought over it from the
+// access and positioned across the lesion from distal, and deployed at 10 atm. The stent's middle
+// lands on the lesion's middle within the placement's tolerance (0.5 mm) and the stent (18 mm)
+// covers the lesion (12 mm). The default run places its stent the same way across the beating
+// LAD; this is the same action on a still, straight vessel, short enough for every build. Entered
+// near the tube's start, the instruments go down it (its arc length growing) as into a coronary
+// from its ostium; entered near its end, up it, as from an access below a lesion (until
+// 2026-11-28 the action then measured the markers the wrong way along the vessel and "placed"
+// the stent 59 mm short of the lesion).
+void place_across_the_lesion(double access_mm, double lesion_mm) {
+  test::TubeSpecs t{1.5, 60.0, "stent-cocr-3.0x18", ""};
+  t.access_mm = access_mm;
+  t.lesion_mm = lesion_mm;
+  const Scenario sc =
+      test::balloon_in_tube(scratch("place-" + std::to_string(static_cast<int>(access_mm))), t,
+                            R"("input": {"type": "autopilot"},
+    "autopilot": [
+      {"action": "place", "instrument": "balloon", "lesion": 0, "speed_mm_s": 100,
+       "tolerance_mm": 0.5},
+      {"action": "inflate", "pressure_atm": 10, "ramp_s": 1, "hold_s": 1},
+      {"action": "deflate", "duration_s": 1}
+    ])");
+  Simulator sim(sc);
+  const double lesion_s0 = lesion_mm * 1e-3, lesion_s1 = lesion_s0 + 0.012;
+  const double lesion_middle = 0.5 * (lesion_s0 + lesion_s1);
+  const double access = access_mm * 1e-3;
+  const double wire_depth = std::abs(lesion_middle - access) + 0.03;
+  StepCommands cmds;
+  cmds.reset(2);
+  cmds.drive[0].mode = DriveCommand::Mode::kPosition;
+  cmds.drive[1].mode = DriveCommand::Mode::kPosition;
+  while (sim.time() < wire_depth / 0.05 + 0.2) {
+    cmds.drive[0].translation = std::min(wire_depth, 0.05 * sim.time());
+    sim.step(cmds);
+  }
+  Autopilot pilot(sim);
+  while (!pilot.finished() && sim.time() < 60.0) {
+    pilot.command(sim, cmds);
+    sim.step(cmds);
+  }
+  ASSERT_TRUE(pilot.finished()) << pilot.status();
+  ASSERT_FALSE(pilot.failed()) << pilot.status();
+  const StentState& stent = sim.state().procedure.stents.at(0);
+  ASSERT_EQ(stent.phase, StentState::Phase::kDeployed);
+  const double middle = stent.ring_s[stent.ring_s.size() / 2];
+  EXPECT_NEAR(middle, lesion_middle, 0.5e-3) << "m along the tube";
+  EXPECT_LT(stent.ring_s.front(), lesion_s0);
+  EXPECT_GT(stent.ring_s.back(), lesion_s1);
+  EXPECT_NEAR(sim.instrument(0).drive.depth, wire_depth, 1e-3) << "the wire held where it was";
+  EXPECT_EQ(sim.metrics().rollbacks, 0);
+  EXPECT_EQ(sim.metrics().escape_steps, 0);
+}
+
+TEST(Stent, ThePlaceActionPutsItsMiddleOnTheLesionsMiddleGoingDownAVessel) {
+  place_across_the_lesion(10.0, 128.0);
+}
+
+TEST(Stent, ThePlaceActionPutsItsMiddleOnTheLesionsMiddleGoingUpAVessel) {
+  place_across_the_lesion(190.0, 60.0);
+}
+
 // A deployed stent is a wall inside the lumen that moves with the beating vessel: at
 // end-systole a node 0.1 mm inside the stent's radius from the vessel's moved axis meets the
 // stent there, and the same node about the stent's place at rest does not (the vessel has moved
