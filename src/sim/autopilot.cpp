@@ -162,7 +162,9 @@ void Autopilot::start_phase(const SimModel& md, const SimState& st) {
     const int seg = tree.lesions[static_cast<std::size_t>(lm.lesion)].segment;
     const double mid = 0.5 * (lm.span.s0 + lm.span.s1);
     // Which way the route runs through the lesion: from the segment's start (down it, as into a
-    // coronary from its ostium) or from its end (up it: an access below the lesion).
+    // coronary from its ostium) or from its end (up it: an access below the lesion). Read from
+    // the route to the middle itself (a branch holding the access can join the lesion's vessel
+    // on either side of it), then the route is laid on past the middle that way.
     route_ = route(tree, tree.access, TreeLocation{seg, mid}, kSpacing);
     place_direction_ = 1;
     if (route_.size() >= 2) {

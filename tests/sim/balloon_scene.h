@@ -19,8 +19,8 @@ struct TubeSpecs {
   double lesion_percent = 0.0;  // 0: none
   std::string catalogue = "balloon-sc-3.0x15";
   std::string lesions_json;  // the scenario's "lesions" key, "" for the defaults
-  // Where the sheath enters (the instruments head to the tube's nearer end's far side: from
-  // 190 mm toward its start, from 10 mm toward its end) and where the lesion starts, mm.
+  // Where the sheath enters, mm along the tube (the instruments head for the farther end: from
+  // 190 mm toward the start, from 10 mm toward the end), and where the lesion starts, mm.
   double access_mm = 190.0;
   double lesion_mm = 60.0;
 };
