@@ -77,6 +77,15 @@ nlohmann::json to_json(const InstrumentSpec& s, const Discretisation& disc) {
                         {"grading", plan.grading},
                         {"distal_segment_mm", plan.distal * 1e3},
                         {"proximal_segment_mm", plan.proximal * 1e3}}}};
+  // The shaft's torsional rigidity (N m^2), the braid's included, which the rod is built with.
+  j["torsional_rigidity_n_m2"] = s.torsional_rigidity();
+  if (s.braid) {
+    j["braid"] = {{"wires", s.braid->wires},
+                  {"wire_width_mm", in_unit(s.braid->wire_width, kMm)},
+                  {"wire_thickness_mm", in_unit(s.braid->wire_thickness, kMm)},
+                  {"angle_deg", in_unit(s.braid->angle, kDeg)},
+                  {"modulus_gpa", s.braid->modulus * 1e-9}};
+  }
   if (s.taper_length > 0.0) {
     j["tip_taper_mm"] = s.taper_length * 1e3;
     j["tip_entry_profile_mm"] = s.entry_profile * 1e3;

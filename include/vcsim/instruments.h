@@ -79,6 +79,19 @@ struct InstrumentRadiopacity {
   std::vector<double> markers;          // marker band positions, distance from the distal tip (m)
 };
 
+// A braided catheter's reinforcing braid (stainless flat wire embedded in the wall): it gives the
+// shaft its torque response, which a polymer tube of the same flexural modulus lacks (a JR4
+// turned at the hand in the aortic root hardly turned at its tip without it; docs/
+// instruments.md, "Braid"). Only the torsional rigidity is taken from it: the entry's Young's
+// modulus is already the whole section's, braid included.
+struct BraidSpec {
+  int wires = 16;                    // carriers, both helix directions together
+  double wire_width = 0.075e-3;      // (m) of a flat wire
+  double wire_thickness = 0.025e-3;  // (m)
+  double angle = 1.0472;             // helix angle to the shaft's axis (rad)
+  double modulus = 193e9;            // Young's modulus of the wire (Pa)
+};
+
 // One catalogue entry, in SI.
 struct InstrumentSpec {
   std::string name;         // unique, equal to the file stem
@@ -94,6 +107,7 @@ struct InstrumentSpec {
   double taper_length = 0.0;         // distal taper to the entry profile (m), 0 for none
   double entry_profile = 0.0;        // outer diameter at the very tip when tapered (m)
   double poisson = 0.3;
+  std::optional<BraidSpec> braid;     // catheters: torsion from the braid as well as the wall
   double density = 6450.0;            // (kg/m^3)
   std::vector<TipSection> tip_shape;  // rest shape of the distal end, proximal to distal
   InstrumentFriction friction;
@@ -103,6 +117,10 @@ struct InstrumentSpec {
 
   // Length of the shaped distal part (sum of the tip sections) (m).
   double shaped_length() const;
+  // Torsional rigidity G J of the shaft (N m^2): the wall's, E / (2 (1 + poisson)) times the
+  // annulus' polar moment, plus the braid's by netting analysis (each wire carries only its
+  // axial load): n E_w A_w R^2 sin^2(a) cos(a), R the wall's mean radius.
+  double torsional_rigidity() const;
 };
 
 // Parses one catalogue file's text. `source` names it in errors ("data/instruments/jl4.json");

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <numbers>
 #include <sstream>
 
 #include "json_fields.h"
@@ -98,6 +99,31 @@ InstrumentFriction parse_friction(JsonFields f) {
     f.fail("vessel_dynamic", "expected at most vessel_static");
   }
   f.finish();
+  return out;
+}
+
+// A braid lies in the wall: its two crossing layers of flat wire must fit the wall's thickness.
+BraidSpec parse_braid(JsonFields b, double outer_diameter, double inner_diameter) {
+  b.keys({"wires", "wire_width_mm", "wire_thickness_mm", "angle_deg", "modulus_gpa"});
+  BraidSpec out;
+  out.wires = b.integer_or("wires", 2, 128, -1);
+  if (out.wires < 0) b.fail("wires", "required: the braid's carriers (2-128)");
+  if (out.wires % 2 != 0) {
+    b.fail("wires", internal::cat("expected an even count (half each way round), got ",
+                                  std::to_string(out.wires)));
+  }
+  out.wire_width = b.in_range("wire_width_mm", 0.0, 1.0) * kMm;
+  out.wire_thickness = b.in_range("wire_thickness_mm", 0.0, 1.0) * kMm;
+  out.angle = b.in_range("angle_deg", 0.0, 89.0) * kDeg;
+  out.modulus = b.in_range("modulus_gpa", 0.0, 1000.0) * 1e9;
+  const double wall = 0.5 * (outer_diameter - inner_diameter);
+  if (2.0 * out.wire_thickness > wall) {
+    char text[96];
+    std::snprintf(text, sizeof text, "expected two layers to fit the wall (%.4g mm each at most)",
+                  0.5 * wall / kMm);
+    b.fail("wire_thickness_mm", text);
+  }
+  b.finish();
   return out;
 }
 
@@ -305,6 +331,18 @@ const char* to_string(InstrumentKind k) {
   return "unknown";
 }
 
+double InstrumentSpec::torsional_rigidity() const {
+  const double ro = 0.5 * outer_diameter, ri = 0.5 * inner_diameter;
+  const double polar = 0.5 * std::numbers::pi * (ro * ro * ro * ro - ri * ri * ri * ri);
+  double gj = youngs_modulus / (2.0 * (1.0 + poisson)) * polar;
+  if (braid) {
+    const double r = 0.5 * (ro + ri), s = std::sin(braid->angle), c = std::cos(braid->angle);
+    gj += braid->wires * braid->modulus * braid->wire_width * braid->wire_thickness * r * r * s *
+          s * c;
+  }
+  return gj;
+}
+
 double InstrumentSpec::shaped_length() const {
   double s = 0.0;
   for (const auto& t : tip_shape) s += t.length;
@@ -378,6 +416,10 @@ InstrumentSpec parse_instrument(std::string_view json_text, const std::string& s
     f.fail("tip_taper_mm", "expected with a tip entry profile (the length it tapers over)");
   }
   s.poisson = f.in_range_or("poisson", -1.0, 0.5, 0.3);
+  if (f.has("braid")) {
+    if (!(s.inner_diameter > 0.0)) f.fail("braid", "expected only on a tube (an id_mm or id_in)");
+    s.braid = parse_braid(f.object("braid"), s.outer_diameter, s.inner_diameter);
+  }
   s.density = f.in_range("density_kg_m3", 0.0, 25000.0);
 
   const Json& sections = f.array("tip_sections");

@@ -75,6 +75,31 @@ TEST(Catalogue, ClinicalUnitsConvertToSi) {
   EXPECT_EQ(jl.tip_shape[2].kind, vcsim::TipSection::Kind::kArc);
 }
 
+// A braided catheter's torsional rigidity is its polymer wall's plus its braid's by netting
+// analysis (docs/instruments.md, "Braid"), worked here from the file's values by hand, and the
+// rod is built with that rigidity.
+TEST(Catalogue, ABraidedShaftsTorsionIsItsWallsPlusItsBraids) {
+  const auto cat = shipped();
+  const InstrumentSpec& jr = cat.get("catheter-jr4-6f");
+  ASSERT_TRUE(jr.braid.has_value());
+  const double pi = std::numbers::pi;
+  const double ro = 1.0e-3, ri = 0.5 * 0.070 * 25.4e-3;  // 6F, 0.070"
+  const double polar = 0.5 * pi * (std::pow(ro, 4) - std::pow(ri, 4));
+  const double wall = 0.6e9 / (2.0 * 1.4) * polar;  // E 0.6 GPa, Poisson 0.4
+  const double r = 0.5 * (ro + ri), a = 60.0 * pi / 180.0;
+  const double braid =
+      16 * 193e9 * (0.075e-3 * 0.025e-3) * r * r * std::sin(a) * std::sin(a) * std::cos(a);
+  EXPECT_NEAR(jr.torsional_rigidity(), wall + braid, 1e-12 * (wall + braid));
+  EXPECT_NEAR(jr.torsional_rigidity(), 2.06e-3, 0.01e-3);  // the figure docs/instruments.md gives
+  EXPECT_GT(jr.torsional_rigidity(), 10.0 * wall);         // the braid, not the wall, twists it
+  const vcsim::RodDef def = vcsim::to_rod_def(jr, vcsim::Discretisation{});
+  EXPECT_NEAR(def.shear_modulus * polar, jr.torsional_rigidity(), 1e-9 * jr.torsional_rigidity());
+  // Without a braid, G comes from Poisson's ratio as before.
+  const InstrumentSpec& wire = cat.get("wire-014-floppy");
+  EXPECT_FALSE(wire.braid.has_value());
+  EXPECT_EQ(vcsim::to_rod_def(wire, vcsim::Discretisation{}).shear_modulus, 0.0);
+}
+
 TEST(Catalogue, EveryEntryBuildsABoundedRodFinerAtTheTip) {
   for (const auto& s : shipped().items) {
     SCOPED_TRACE(s.name);
@@ -198,6 +223,46 @@ TEST(CatalogueErrors, NameFileAndField) {
     std::string prefix = "data/instruments/bad.json: ";
     prefix += c.field;
     prefix += ": ";
+    EXPECT_EQ(err.rfind(prefix, 0), 0u) << c.label << " -> " << err;
+    EXPECT_NE(err.find(c.expected), std::string::npos) << c.label << " -> " << err;
+  }
+}
+
+TEST(CatalogueErrors, ABraidNamesItsField) {
+  auto catheter = [] {
+    json j = valid_wire();
+    j["kind"] = "catheter";
+    j["id_mm"] = 0.6;  // a wall of 0.144 mm
+    j["braid"] = {{"wires", 16},
+                  {"wire_width_mm", 0.075},
+                  {"wire_thickness_mm", 0.025},
+                  {"angle_deg", 60.0},
+                  {"modulus_gpa", 193}};
+    return j;
+  };
+  EXPECT_EQ(error_of(catheter()), "");
+  const std::vector<BadCase> cases = {
+      {"on a wire",
+       [](json& j) {
+         j.erase("id_mm");
+         j["kind"] = "guidewire";
+       },
+       "braid", "only on a tube"},
+      {"odd count", [](json& j) { j["braid"]["wires"] = 15; }, "braid.wires", "even count"},
+      {"no count", [](json& j) { j["braid"].erase("wires"); }, "braid.wires", "required"},
+      {"fractional count", [](json& j) { j["braid"]["wires"] = 16.5; }, "braid.wires",
+       "an integer"},
+      {"too thick for the wall", [](json& j) { j["braid"]["wire_thickness_mm"] = 0.1; },
+       "braid.wire_thickness_mm", "two layers to fit the wall"},
+      {"axial wires", [](json& j) { j["braid"]["angle_deg"] = 0; }, "braid.angle_deg",
+       "expected a value"},
+      {"typo", [](json& j) { j["braid"]["angle"] = 60; }, "braid.angle", "unknown key"},
+  };
+  for (const auto& c : cases) {
+    json doc = catheter();
+    c.edit(doc);
+    const std::string err = error_of(doc);
+    const std::string prefix = std::string("data/instruments/bad.json: ") + c.field + ": ";
     EXPECT_EQ(err.rfind(prefix, 0), 0u) << c.label << " -> " << err;
     EXPECT_NE(err.find(c.expected), std::string::npos) << c.label << " -> " << err;
   }
