@@ -843,7 +843,8 @@ class Autopilot {
   std::string status_;
   double next_trace_ = 0.0;
   double aim_distance_ = 0.0, aim_angle_ = 0.0;  // of the leader's tip to its aim (trace)
-  double pressure_ = 0.0;                        // Pa commanded to the indeflator
+  double aim_along_ = 0.0;  // m of the aim ahead of the tip along its shaft (< 0: behind)
+  double pressure_ = 0.0;   // Pa commanded to the indeflator
   // A place phase (Autopilot::place): past the lesion's middle, drawn back to it, watched, and
   // adjusted between watches.
   enum class PlaceStage { kPast, kDrawBack, kWatch, kAdjust };

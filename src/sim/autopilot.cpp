@@ -41,8 +41,9 @@ constexpr double kHoldRange = 15e-3;    // m either way of the seated depth
 constexpr double kApproach = 30e-3;     // m before the goal where the advance slows down  // m: a
                                         // branch this close ahead is aimed at
 constexpr double kDeadband = 10.0 * kPi / 180.0;
-constexpr double kInOuter = 10e-3;    // m: an inner instrument this far short of its outer's depth
-constexpr double kMaxRoll = kPi / 2;  // steering stays within a quarter turn of the phase start
+constexpr double kInOuter = 10e-3;     // m: an inner instrument this far short of its outer's depth
+constexpr double kEngageNear = 20e-3;  // m: within this of an ostium, brought to its level
+constexpr double kMaxRoll = kPi / 2;   // steering stays within a quarter turn of the phase start
 
 // Distal direction of the instrument's shaft just proximal to its shaped tip, and of the tip.
 // Index of the point nearest X (the first of equals). With `s`, only the points whose s lies
@@ -310,7 +311,18 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
   // wall, holds its shaft): its tip may be turned a whole turn either way, where a catheter's
   // stops at a quarter turn (held at half a turn, the steering of a wire that had to go further
   // round to face the LCx pinned it there), and its retries try quarter and half turns.
-  const double max_roll = guided ? 2.0 * kPi : kMaxRoll;
+  // A catheter engaging a coronary ostium (a guide's goal just inside a coronary) that missed it
+  // on its first approach: a braided shaft carries the hand's turn to its tip (docs/
+  // instruments.md, "Braid"), and a JR4 has to go round the aortic root to face the right
+  // coronary, so from the first retry it may be turned half a turn either way (and is brought to
+  // the ostium's level, below). A quarter turn started none of 8 RCA seeds, half a turn from the
+  // start 7 of 8, from the first retry 8 of 8; from the start, the JL4 of the unvaried patient
+  // missed the left main, which it finds on its first approach (docs/measurements.md).
+  const bool engaging = md.specs[L].kind == InstrumentKind::kCatheter &&
+                        md.tree.segments[goal_segment_].kind == VesselKind::kCoronary &&
+                        ph.goal_distance < kApproach && route_s_.back() - progress_ < kApproach &&
+                        retries_ > 0;
+  const double max_roll = guided ? 2.0 * kPi : engaging ? kPi : kMaxRoll;
   // Steer: turn the tip's bend toward the route ahead (about the shaft's axis).
   auto steer = [&]() {
     std::size_t k = best;
@@ -330,6 +342,7 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
     const Vec3 want = route_[k] - X;
     aim_distance_ = want.norm();
     aim_angle_ = std::acos(std::clamp(tipdir.dot(want.normalized()), -1.0, 1.0));
+    aim_along_ = want.dot(shaft);
     const Vec3 b = tipdir - tipdir.dot(shaft) * shaft;
     const Vec3 d = want - want.dot(shaft) * shaft;
     if (b.norm() > 0.15 && d.norm() > 0.25 * want.norm()) {
@@ -414,10 +427,17 @@ void Autopilot::navigate(const SimModel& md, const SimState& st, const Autopilot
     // Slow down toward the goal and keep the commanded depth near the real one (the drive can
     // lag behind a position command when the hand pushes against resistance).
     const double to_goal = route_s_.back() - progress_;
-    // Slow down over the last few centimetres (an ostium is found at a walking pace).
-    const double v = std::clamp(to_goal / kApproach, 0.25, 1.0) * ph.speed;
-    depth_[L] = std::min(depth_[L] + v * dt, depth(L) + 0.01);
     steer();
+    // Slow down over the last few centimetres (an ostium is found at a walking pace).
+    double v = std::clamp(to_goal / kApproach, 0.25, 1.0) * ph.speed;
+    // Engaging an ostium from close by: the tip is brought to the ostium's level, pulled back
+    // when the ostium lies behind it along the shaft (a Judkins tip that has dropped into the
+    // sinus below it) and advanced when ahead, while it is turned to face it: the JR4's way into
+    // the right coronary, turned while drawn back a little. Pushed on regardless, the tip went
+    // deeper into the sinus floor 10 mm below the ostium, facing it within 25-35 deg.
+    if (engaging && aim_distance_ < kEngageNear)
+      v = 0.5 * std::clamp(aim_along_ / aim_distance_, -0.5, 1.0) * ph.speed;
+    depth_[L] = std::max(0.0, std::min(depth_[L] + v * dt, depth(L) + 0.01));
   }
   // The follower keeps its tip behind the leader's (a catheter tracking over its wire).
   if (follower_ >= 0) depth_[follower_] = std::max(0.0, depth_[L] - ph.follow_gap);
