@@ -229,6 +229,22 @@ def test_the_coronary_episode_starts_with_the_wire_just_inside_the_seated_guide(
     assert sim.tip_location("guide")[0] == "left_main"
 
 
+def test_the_jr4_is_seated_in_the_right_coronary():
+    # Issue 28: the JR4's tip hardly turned with the hand (a polymer tube's torsion, no braid) and
+    # the steering stopped at a quarter turn, so no RCA episode could be started. With the braid's
+    # torsion and the ostium engaged at its level, a draw of the default patient starts.
+    env = envs.CoronaryNavigation(targets=("rca",))
+    try:
+        obs, info = env.reset(seed=5)
+        sim = env.sim
+        assert sim.tip_location("guide")[0] == "rca"
+        along, off = _along_guide_from_its_tip(sim, sim.tips()[sim.index("wire")])
+        assert 15e-3 < along < 30e-3 and off < 1e-3  # the wire just inside the seated guide
+        assert info["target"][0] == "rca" and info["episode"].instruments[0] == "catheter-jr4-6f"
+    finally:
+        env.close()
+
+
 def _coronary_start(ep, phases):
     """The scene of a CoronaryNavigation episode and its autopilot run through `phases` phases
     with the environment's retries: (sim, pilot, True when they were done)."""

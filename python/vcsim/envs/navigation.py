@@ -439,12 +439,10 @@ class CoronaryNavigation(_Navigation):
     heart rate 55-95 bpm, the wire (floppy or intermediate), the target vessel and depth (40-80
     mm past its ostium) and the C-arm (one of the usual views of that vessel).
 
-    Targets are the LAD and LCx by default: the autopilot does not seat the JR4 in the RCA today
-    (its tip hardly turns with the hand in the aortic root, and the steering stops at a quarter
-    turn; docs/measurements.md), so with targets=("rca",) every reset ends in StartFailed after
-    six draws. About half the LAD/LCx draws cannot be started either (the guide is not seated in
-    the left main);
-    reset() draws again, up to five times, and info["redraws"] counts them.
+    Not every draw can be started: the autopilot seats the JL4 in the left main in about half
+    of the LAD/LCx draws and the JR4 in the RCA in more than half of the RCA draws
+    (docs/measurements.md); reset() draws again, up to five times, and info["redraws"] counts
+    them.
     """
 
     TARGETS = ("lad", "lcx", "rca")
@@ -459,7 +457,7 @@ class CoronaryNavigation(_Navigation):
     _is_coronary = True
     START_GAP = 0.02  # m: the wire's tip this far inside the guide's at the start
 
-    def __init__(self, *, targets=("lad", "lcx"), wires=WIRES, dt=5e-4, **kw):
+    def __init__(self, *, targets=TARGETS, wires=WIRES, dt=5e-4, **kw):
         targets = tuple(targets)
         if not targets or any(t not in self.TARGETS for t in targets):
             raise ValueError(f"targets: expected names among {self.TARGETS}, got {targets}")
