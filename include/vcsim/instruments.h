@@ -121,6 +121,8 @@ struct InstrumentSpec {
   // annulus' polar moment, plus the braid's by netting analysis (each wire carries only its
   // axial load): n E_w A_w R^2 sin^2(a) cos(a), R the wall's mean radius.
   double torsional_rigidity() const;
+  // Polar moment of the shaft's annulus, pi (ro^4 - ri^4) / 2 (m^4).
+  double polar_moment() const;
 };
 
 // Parses one catalogue file's text. `source` names it in errors ("data/instruments/jl4.json");

@@ -331,10 +331,14 @@ const char* to_string(InstrumentKind k) {
   return "unknown";
 }
 
+double InstrumentSpec::polar_moment() const {
+  const double ro = 0.5 * outer_diameter, ri = 0.5 * inner_diameter;
+  return 0.5 * std::numbers::pi * (ro * ro * ro * ro - ri * ri * ri * ri);
+}
+
 double InstrumentSpec::torsional_rigidity() const {
   const double ro = 0.5 * outer_diameter, ri = 0.5 * inner_diameter;
-  const double polar = 0.5 * std::numbers::pi * (ro * ro * ro * ro - ri * ri * ri * ri);
-  double gj = youngs_modulus / (2.0 * (1.0 + poisson)) * polar;
+  double gj = youngs_modulus / (2.0 * (1.0 + poisson)) * polar_moment();
   if (braid) {
     const double r = 0.5 * (ro + ri), s = std::sin(braid->angle), c = std::cos(braid->angle);
     gj += braid->wires * braid->modulus * braid->wire_width * braid->wire_thickness * r * r * s *

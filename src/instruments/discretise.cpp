@@ -1,6 +1,5 @@
 // Catalogue entry -> RodDef, with a bounded node count graded toward the distal tip.
 #include <cmath>
-#include <numbers>
 #include <string>
 
 #include "vcsim/instruments.h"
@@ -71,12 +70,7 @@ RodDef to_rod_def(const InstrumentSpec& spec, const Discretisation& disc) {
   d.youngs_modulus = spec.youngs_modulus;
   d.poisson = spec.poisson;
   // 0: from poisson; a braided shaft's G is its torsional rigidity over the annulus' polar moment.
-  d.shear_modulus = 0.0;
-  if (spec.braid) {
-    const double ro = 0.5 * spec.outer_diameter, ri = 0.5 * spec.inner_diameter;
-    d.shear_modulus = spec.torsional_rigidity() /
-                      (0.5 * std::numbers::pi * (ro * ro * ro * ro - ri * ri * ri * ri));
-  }
+  d.shear_modulus = spec.braid ? spec.torsional_rigidity() / spec.polar_moment() : 0.0;
   d.outer_radius = 0.5 * spec.outer_diameter;
   d.inner_radius = 0.5 * spec.inner_diameter;
   d.density = spec.density;
