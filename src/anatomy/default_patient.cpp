@@ -146,7 +146,7 @@ struct CoronaryPath {
 
 CoronaryPath coronary(const Heart& hs, const std::vector<std::pair<double, double>>& way,
                       const std::vector<std::pair<double, double>>& radius_knots,
-                      const std::vector<Vec3>& lead_in, double spacing) {
+                      const std::vector<Vec3>& lead_in, double spacing, double join_deg = 0.0) {
   // Dense (u, theta) path, linear between waypoints, first with a mid radius for lengths.
   Dense d;
   for (std::size_t w = 0; w + 1 < way.size(); ++w) {
@@ -169,9 +169,19 @@ CoronaryPath coronary(const Heart& hs, const std::vector<std::pair<double, doubl
   std::vector<Vec3> ctrl = lead_in;
   const double step = 3.0 * kMm;
   const int n = std::max(2, static_cast<int>(std::ceil(d.cum.back() / step)));
+  // With join_deg: the surface path's first points are skipped until the way from the lead-in's
+  // end to one runs within join_deg of the path's own direction there, so that a lead-in that
+  // leaves the aorta away from where the groove starts meets the groove without turning back.
+  bool joined = lead_in.empty() || join_deg <= 0.0;
+  const double min_cos = std::cos(join_deg * kDeg);
   for (int k = 0; k <= n; ++k) {
     const Vec3 q = lerp_at(d.p, d.cum, d.cum.back() * k / n);
     if (!ctrl.empty() && (q - ctrl.back()).norm() < 0.5 * step) continue;
+    if (!joined && k < n) {
+      const Vec3 ahead = (lerp_at(d.p, d.cum, d.cum.back() * (k + 1) / n) - q).normalized();
+      if ((q - ctrl.back()).normalized().dot(ahead) < min_cos) continue;
+      joined = true;
+    }
     ctrl.push_back(q);
   }
   const Dense sm = catmull_rom(ctrl, 16);
@@ -413,15 +423,22 @@ VesselTree make_patient(PatientVariant variant) {
 
   // RCA from the right sinus, down the right atrioventricular groove: 3.9 mm (right-dominant) or
   // 2.8 mm (left-dominant) proximal diameter (Dodge).
-  const Vec3 rca_exit = a14 + 17 * kMm * w_right;
+  // It runs 5 mm straight out of the sinus's wall (the lumen is cut clear of the aorta there,
+  // lumen.cpp), turns down, and joins the groove where the groove runs on within 25 degrees of
+  // the way to it (coronary(), `join_deg`): the groove's start at this height lies behind and
+  // below the ostium, and joined at its first point (until 2026-11-28) the RCA ran 23 mm out and
+  // came back in two hairpins (curvature radius 2.3 mm for a 1.9 mm lumen) that stopped every
+  // wire (docs/anatomy.md).
+  const Vec3 rca_exit = a14 + 21 * kMm * w_right;
   const std::vector<Vec3> rca_lead = {
       a14, a14 + 8 * kMm * w_right, rca_exit,
-      rca_exit + 6 * kMm * (w_right + Vec3(0, 0, -0.8)).normalized()};
+      rca_exit + 8 * kMm * (0.2 * w_right + Vec3(0, 0, -1)).normalized()};
+  constexpr double kRcaJoinDeg = 25.0;
   if (!left) {
     const std::vector<std::pair<double, double>> rca_r = {{0, 1.95}, {0.5, 1.7}, {1, 1.4}};
     const CoronaryPath rca =
         coronary(hs, {{-0.76, 22}, {-0.78, 60}, {-0.75, 100}, {-0.70, 130}, {-0.66, 150}}, rca_r,
-                 rca_lead, sp);
+                 rca_lead, sp, kRcaJoinDeg);
     const int i_rca = add_cor("rca", root, rca, rca_r);
     // Posterior descending and posterolateral branches from the crux (right dominance).
     const Vec3 crux = b.t.segments[i_rca].points.back();
@@ -434,8 +451,8 @@ VesselTree make_patient(PatientVariant variant) {
     add_cor("posterolateral", i_rca, pl, pda_r);
   } else {
     const std::vector<std::pair<double, double>> rca_r = {{0, 1.4}, {1, 1.0}};
-    const CoronaryPath rca =
-        coronary(hs, {{-0.76, 22}, {-0.78, 60}, {-0.75, 100}, {-0.72, 115}}, rca_r, rca_lead, sp);
+    const CoronaryPath rca = coronary(hs, {{-0.76, 22}, {-0.78, 60}, {-0.75, 100}, {-0.72, 115}},
+                                      rca_r, rca_lead, sp, kRcaJoinDeg);
     b.add("rca", VesselKind::kCoronary, root, rca.points, radii_by_fraction(rca.points, rca_r));
     // The posterior descending artery from the LCx at the crux (left dominance).
     const Vec3 crux = b.t.segments[i_lcx].points.back();

@@ -32,14 +32,13 @@ constexpr double kPlaceBeyond = 20e-3;         // m the place route runs on past
 constexpr double kPositionCheck = 4.0 * kAtm;  // Pa: markers watched while inflating below it
 constexpr double kNudgeSpeed = 2e-3;           // m/s: the hand's correction then
 constexpr double kLookAhead = 12e-3;           // m along the route the tip is aimed at
-constexpr double kBranchAhead = 40e-3;
+constexpr double kBranchAhead = 40e-3;         // m: a branch this close ahead is aimed at
 constexpr double kHoldLost = 1.5;       // s out of reach before a held tip counts as fallen out
 constexpr double kHoldReach = 8e-3;     // m: a held tip farther than this from its route is lost
 constexpr double kHoldDeadband = 2e-3;  // m of tip displacement the hand lets pass
 constexpr double kHoldGain = 3.0;       // 1/s: depth correction per metre of tip displacement
 constexpr double kHoldRange = 15e-3;    // m either way of the seated depth
-constexpr double kApproach = 30e-3;     // m before the goal where the advance slows down  // m: a
-                                        // branch this close ahead is aimed at
+constexpr double kApproach = 30e-3;     // m before the goal where the advance slows down
 constexpr double kDeadband = 10.0 * kPi / 180.0;
 constexpr double kInOuter = 10e-3;     // m: an inner instrument this far short of its outer's depth
 constexpr double kEngageNear = 20e-3;  // m: within this of an ostium, brought to its level

@@ -129,6 +129,30 @@ TEST(AnatomyDefaultPatient, CoronariesLieOnTheHeart) {
   }
 }
 
+// Past its ostium no coronary bends tighter than 1.5 of its radii (the curvature radius through
+// points 2 mm either side): tighter, the inner wall folds and a wire's tip is held in the fold.
+// The LAD and LCx leaving their bifurcation come closest (1.8-2.2 radii). The RCA's lead from the
+// right sinus, until 2026-11-28, doubled back to the groove at 1.2 radii.
+TEST(AnatomyPatients, CoronariesHaveNoKinks) {
+  for (const PatientVariant v :
+       {PatientVariant::kRightDominant, PatientVariant::kLeftDominantTortuous}) {
+    const VesselTree& t = patient(v);
+    for (int i = 0; i < t.num_segments(); ++i) {
+      const VesselSegment& s = t.segments[i];
+      if (s.kind != VesselKind::kCoronary) continue;
+      const double len = segment_length(s);
+      for (double d = ostium_distance(t, i) + 0.5 * mm; d < len - 2 * mm; d += 0.5 * mm) {
+        if (d < 2 * mm) continue;
+        const Vec3 a = point_at(s, d - 2 * mm), b = point_at(s, d), c = point_at(s, d + 2 * mm);
+        const double twice_area = (b - a).cross(c - a).norm();
+        if (twice_area < 1e-15) continue;  // straight
+        const double rc = (b - a).norm() * (c - b).norm() * (a - c).norm() / (2 * twice_area);
+        EXPECT_GT(rc, 1.5 * radius_at(s, d)) << s.name << " at " << d / mm << " mm";
+      }
+    }
+  }
+}
+
 TEST(AnatomyLeftDominant, DiffersWhereItShould) {
   const VesselTree &r = patient(), &l = patient(PatientVariant::kLeftDominantTortuous);
   EXPECT_NO_THROW(validate_tree(l, "left"));
