@@ -424,15 +424,23 @@ VesselTree make_patient(PatientVariant variant) {
   // RCA from the right sinus, down the right atrioventricular groove: 3.9 mm (right-dominant) or
   // 2.8 mm (left-dominant) proximal diameter (Dodge).
   // It runs 5 mm straight out of the sinus's wall (the lumen is cut clear of the aorta there,
-  // lumen.cpp), turns down, and joins the groove where the groove runs on within 25 degrees of
-  // the way to it (coronary(), `join_deg`): the groove's start at this height lies behind and
-  // below the ostium, and joined at its first point (until 2026-11-28) the RCA ran 23 mm out and
-  // came back in two hairpins (curvature radius 2.3 mm for a 1.9 mm lumen) that stopped every
-  // wire (docs/anatomy.md).
+  // lumen.cpp), then turns down and back on an arc of 12 mm radius through 130 degrees, and joins
+  // the groove where the groove runs on within 25 degrees of the way to it (coronary(),
+  // `join_deg`). The groove's start at this height lies behind and below the ostium. Joined at its
+  // first point (until 2026-11-28) the RCA ran 23 mm out and came back in two hairpins (curvature
+  // radius 2.3 mm for a 1.9 mm lumen); turned down over 8 mm (e1d2dbb), its 5 mm bend stiffened
+  // the 0.014" wire's push enough to back the JR4 out of the ostium (docs/anatomy.md).
   const Vec3 rca_exit = a14 + 21 * kMm * w_right;
-  const std::vector<Vec3> rca_lead = {
-      a14, a14 + 8 * kMm * w_right, rca_exit,
-      rca_exit + 8 * kMm * (0.2 * w_right + Vec3(0, 0, -1)).normalized()};
+  const Vec3 rca_down = (Vec3(0, 0, -1) - Vec3(0, 0, -1).dot(w_right) * w_right).normalized();
+  std::vector<Vec3> rca_lead = {a14, a14 + 8 * kMm * w_right, rca_exit};
+  constexpr double kRcaArcRadius = 12 * kMm;
+  constexpr double kRcaArcDeg = 130.0;
+  constexpr int kRcaArcPoints = 5;
+  for (int k = 1; k <= kRcaArcPoints; ++k) {
+    const double f = kRcaArcDeg * kDeg * k / kRcaArcPoints;
+    rca_lead.push_back(rca_exit +
+                       kRcaArcRadius * (std::sin(f) * w_right + (1 - std::cos(f)) * rca_down));
+  }
   constexpr double kRcaJoinDeg = 25.0;
   if (!left) {
     const std::vector<std::pair<double, double>> rca_r = {{0, 1.95}, {0.5, 1.7}, {1, 1.4}};
