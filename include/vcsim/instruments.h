@@ -104,6 +104,7 @@ struct InstrumentSpec {
   double youngs_modulus = 1e10;      // whole-section flexural modulus of the shaft (Pa)
   double tip_length = 0.0;           // soft distal length (m)
   double tip_modulus_ratio = 1.0;    // E_tip / E_shaft in (0, 1]
+  double core_taper_length = 0.0;    // a wire's core ground down over this, proximal to the tip (m)
   double taper_length = 0.0;         // distal taper to the entry profile (m), 0 for none
   double entry_profile = 0.0;        // outer diameter at the very tip when tapered (m)
   double poisson = 0.3;

@@ -56,6 +56,10 @@ struct RodDef {
   double density = 1000.0;         // (kg/m^3)
   double tip_length = 0.0;         // soft tip length (m)
   double tip_modulus_ratio = 1.0;  // alpha = E_tip / E_shaft, in (0, 1]
+  // A wire's ground core: over core_taper_length proximal to the soft tip, E and G rise from the
+  // tip's to the shaft's as a core whose diameter grows linearly would, (a + (1 - a) u)^4 with
+  // a = alpha^(1/4) and u from 0 at the soft tip to 1 at the shaft (m; 0 for a step).
+  double core_taper_length = 0.0;
   // Tapered distal end (a balloon catheter's tip): the outer radius falls linearly over the last
   // taper_length to taper_outer_radius at the tip; section, mass and stiffness follow. 0: none.
   double taper_length = 0.0;          // (m)

@@ -405,6 +405,14 @@ InstrumentSpec parse_instrument(std::string_view json_text, const std::string& s
   s.tip_length = f.nonnegative("tip_length_mm") * kMm;
   if (s.tip_length > s.length) f.fail("tip_length_mm", "expected at most length_mm");
   s.tip_modulus_ratio = f.in_range("tip_modulus_ratio", 0.0, 1.0);
+  // A wire's core tapers proximal to its soft tip (docs/instruments.md, "Core taper").
+  if (f.has("core_taper_mm")) {
+    if (s.kind != InstrumentKind::kGuidewire) f.fail("core_taper_mm", "expected only on a wire");
+    s.core_taper_length = f.nonnegative("core_taper_mm") * kMm;
+    if (s.tip_length + s.core_taper_length > s.length) {
+      f.fail("core_taper_mm", "expected at most length_mm less tip_length_mm");
+    }
+  }
   // A tapered tip (balloon catheters): the entry profile is the diameter that meets a lesion.
   if (f.has("tip_taper_mm")) {
     s.taper_length = f.in_range("tip_taper_mm", 0.0, 50.0) * kMm;

@@ -76,6 +76,7 @@ RodDef to_rod_def(const InstrumentSpec& spec, const Discretisation& disc) {
   d.density = spec.density;
   d.tip_length = spec.tip_length;
   d.tip_modulus_ratio = spec.tip_modulus_ratio;
+  d.core_taper_length = spec.core_taper_length;
   d.taper_length = spec.taper_length;
   d.taper_outer_radius = 0.5 * spec.entry_profile;
   d.tip_shape = spec.tip_shape;

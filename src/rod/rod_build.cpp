@@ -79,6 +79,10 @@ void RodDef::validate(const std::string& source) const {
   require_nonnegative(tip_length, source, "tip_length");
   if (tip_length > length) throw InputError(source, "tip_length", "expected at most length");
   require_in_range(tip_modulus_ratio, 0.0, 1.0, source, "tip_modulus_ratio");
+  require_nonnegative(core_taper_length, source, "core_taper_length");
+  if (tip_length + core_taper_length > length) {
+    throw InputError(source, "core_taper_length", "expected at most length less tip_length");
+  }
   require_nonnegative(taper_length, source, "taper_length");
   if (taper_length > length) throw InputError(source, "taper_length", "expected at most length");
   if (taper_length > 0.0 &&
@@ -158,7 +162,9 @@ RodModel build_rod(const RodDef& def) {
   for (auto& p : md.rest_position) p = def.base_position + def.base_orientation * p;
   for (auto& f : md.rest_frame) f = (def.base_orientation * f).normalized();
 
-  // Per-edge material and section (soft tip: E and G scaled by alpha over the distal tip).
+  // Per-edge material and section (soft tip: E and G scaled by alpha over the distal tip, and
+  // from alpha back to 1 over a ground core's taper proximal to it).
+  const double core_a = std::pow(def.tip_modulus_ratio, 0.25);
   const double g_shaft =
       def.shear_modulus > 0 ? def.shear_modulus : def.youngs_modulus / (2.0 * (1.0 + def.poisson));
   md.youngs.resize(m);
@@ -173,8 +179,15 @@ RodModel build_rod(const RodDef& def) {
   md.inv_inertia.resize(m);
   const double pi = std::numbers::pi;
   for (int j = 0; j < m; ++j) {
-    const bool tip = md.edge_s[j] >= def.length - def.tip_length;
-    const double scale = tip ? def.tip_modulus_ratio : 1.0;
+    const double soft_from = def.length - def.tip_length;  // arc length where the soft tip starts
+    double scale = 1.0;
+    if (md.edge_s[j] >= soft_from) {
+      scale = def.tip_modulus_ratio;
+    } else if (md.edge_s[j] > soft_from - def.core_taper_length) {
+      const double u = (soft_from - md.edge_s[j]) / def.core_taper_length;
+      const double d = core_a + (1.0 - core_a) * u;  // core diameter / the shaft's
+      scale = d * d * d * d;
+    }
     md.youngs[j] = def.youngs_modulus * scale;
     md.shear[j] = g_shaft * scale;
     double ro = def.outer_radius;

@@ -183,6 +183,17 @@ TEST(CatalogueErrors, NameFileAndField) {
        "(0, 1]"},
       {"soft tip too long", [](json& j) { j["tip_length_mm"] = 2000; }, "tip_length_mm",
        "at most length_mm"},
+      {"core taper too long", [](json& j) { j["core_taper_mm"] = 1480; }, "core_taper_mm",
+       "at most length_mm less tip_length_mm"},
+      {"negative core taper", [](json& j) { j["core_taper_mm"] = -1; }, "core_taper_mm",
+       "expected"},
+      {"core taper on a catheter",
+       [](json& j) {
+         j["kind"] = "catheter";
+         j["id_in"] = 0.02;
+         j["core_taper_mm"] = 100;
+       },
+       "core_taper_mm", "only on a wire"},
       {"both section kinds",
        [](json& j) {
          j["tip_sections"][0]["arc"] = {{"radius_mm", 1}, {"angle_deg", 5}};

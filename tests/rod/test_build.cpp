@@ -2,6 +2,7 @@
 // designed rest shape of a shaped tip.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -49,6 +50,12 @@ TEST(RodBuild, BadDefinitionsNameTheField) {
   expect_input_error(with([](RodDef& d) { d.segments = 1; }), "segments");
   expect_input_error(with([](RodDef& d) { d.youngs_modulus = -1e9; }), "youngs_modulus");
   expect_input_error(with([](RodDef& d) { d.tip_length = 2.0 * d.length; }), "tip_length");
+  expect_input_error(with([](RodDef& d) { d.core_taper_length = -1e-3; }), "core_taper_length");
+  expect_input_error(with([](RodDef& d) {
+                       d.tip_length = 0.5 * d.length;
+                       d.core_taper_length = 0.6 * d.length;
+                     }),
+                     "core_taper_length");
   expect_input_error(with([](RodDef& d) { d.taper_length = 2.0 * d.length; }), "taper_length");
   expect_input_error(with([](RodDef& d) {
                        d.taper_length = 0.01;
@@ -91,6 +98,41 @@ TEST(RodBuild, SoftTipScalesTheModulusOverTheTipOnly) {
     const bool tip = md.edge_s[j] >= d.length - d.tip_length;
     EXPECT_DOUBLE_EQ(md.youngs[j], tip ? 0.21 * d.youngs_modulus : d.youngs_modulus);
   }
+}
+
+// A ground core: proximal to the soft tip the modulus rises from the tip's to the shaft's as the
+// fourth power of a core diameter growing linearly (E I of a solid core ~ d^4), monotonically;
+// the soft tip and the shaft beyond the taper are untouched.
+TEST(RodBuild, CoreTaperRaisesTheModulusAsTheFourthPowerOfALinearCore) {
+  RodDef d;
+  d.length = 0.2;
+  d.segments = 200;
+  d.tip_length = 0.03;
+  d.tip_modulus_ratio = 0.02;
+  d.core_taper_length = 0.1;
+  const RodModel md = build_rod(d);
+  const double a = std::pow(0.02, 0.25), soft_from = d.length - d.tip_length;
+  int in_taper = 0;
+  for (int j = 0; j < md.m; ++j) {
+    const double s = md.edge_s[j];
+    double want = d.youngs_modulus;
+    if (s >= soft_from) {
+      want *= 0.02;
+    } else if (s > soft_from - d.core_taper_length) {
+      const double u = (soft_from - s) / d.core_taper_length, core = a + (1.0 - a) * u;
+      want *= core * core * core * core;
+      ++in_taper;
+    }
+    EXPECT_NEAR(md.youngs[j], want, 1e-12 * d.youngs_modulus) << "edge " << j;
+    if (j > 0) EXPECT_LE(md.youngs[j], md.youngs[j - 1]) << "edge " << j;
+    EXPECT_NEAR(md.shear[j] / md.youngs[j], md.shear[0] / md.youngs[0], 1e-12);
+  }
+  EXPECT_EQ(in_taper, 100);
+  // Half way along the taper the core is (1 + a) / 2 of the shaft's: E = ((1 + a) / 2)^4 E_shaft.
+  const int mid = static_cast<int>(
+      std::lower_bound(md.edge_s.begin(), md.edge_s.end(), soft_from - 0.5 * d.core_taper_length) -
+      md.edge_s.begin());
+  EXPECT_NEAR(md.youngs[mid] / d.youngs_modulus, std::pow(0.5 * (1.0 + a), 4), 0.01);
 }
 
 // A taper (a balloon catheter's tip): over the distal taper_length each edge's outer radius falls
