@@ -439,8 +439,9 @@ class CoronaryNavigation(_Navigation):
     heart rate 55-95 bpm, the wire (floppy or intermediate), the target vessel and depth (40-80
     mm past its ostium) and the C-arm (one of the usual views of that vessel).
 
-    Not every draw can be started: the autopilot seats the JL4 in the left main in about half
-    of the LAD/LCx draws and the JR4 in the RCA in more than half of the RCA draws
+    Not every draw can be started: the autopilot seats the JL4 in the left main in a third to a
+    half of the LAD/LCx draws (fewer in a wider aorta) and the JR4 in the RCA in more than half
+    of the RCA draws
     (docs/measurements.md); reset() draws again, up to five times, and info["redraws"] counts
     them.
     """
