@@ -54,6 +54,7 @@ nlohmann::json to_json(const InstrumentSpec& s, const Discretisation& disc) {
                       {"youngs_modulus_gpa", s.youngs_modulus * 1e-9},
                       {"tip_length_mm", s.tip_length * 1e3},
                       {"tip_modulus_ratio", s.tip_modulus_ratio},
+                      {"core_taper_mm", s.core_taper_length * 1e3},
                       {"poisson", s.poisson},
                       {"density_kg_m3", s.density},
                       {"tip_sections", sections},

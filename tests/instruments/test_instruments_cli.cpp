@@ -41,6 +41,10 @@ TEST(InstrumentsCli, ShowMarkdownAndJson) {
   const auto j = nlohmann::json::parse(r.out);
   EXPECT_NEAR(j["od_mm"].get<double>(), 0.889, 1e-3);
   EXPECT_EQ(j["tip_sections"][0]["arc"]["radius_mm"].get<double>(), 3.0);
+  EXPECT_EQ(j["core_taper_mm"].get<double>(), 0.0);  // a step from its soft tip to the shaft
+  r = run("show wire-014-floppy --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NEAR(nlohmann::json::parse(r.out)["core_taper_mm"].get<double>(), 150.0, 1e-9);
 }
 
 TEST(InstrumentsCli, ListShowsTheBalloonAndStentKinds) {
