@@ -108,6 +108,11 @@ struct BalloonState {
   static constexpr double kRefitMove = 0.1e-3;  // m along the vessel
   // (balloon nodes) arc length of each node along last.segment, when last inflated there
   std::vector<double> s;
+  // (balloon nodes) how far beyond lumen - r of the vessel's axis each node lay when the balloon
+  // began to press on the wall (m; -1 while not held): the folded balloon, wider than the shaft
+  // it lay on the wall as, unfolds onto the axis over the pressure its chart starts at, not in a
+  // step (docs/procedure.md, "Hold").
+  std::vector<double> hold_excess;
   // The largest free diameter it reached in a vessel, over the reference diameter there.
   double max_ratio = 0.0;
   bool over_expanded = false;    // the free diameter passed 1.2 x the reference diameter

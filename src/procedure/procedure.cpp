@@ -185,6 +185,7 @@ void extend_procedure_state(const ProcedureModel& m, ProcedureState& s, SolverSt
     s.balloons[b].lumen.assign(bm.nodes(), 1.0);
     s.balloons[b].lumen_s.assign(bm.nodes(), -1.0);
     s.balloons[b].centre.segment = -1;
+    s.balloons[b].hold_excess.assign(bm.nodes(), -1.0);
     if (bm.stent) {
       const int rings = std::max(2, static_cast<int>(std::ceil(bm.stent->length / 0.5e-3)) + 1);
       s.stents[b].expanded.assign(rings, 0.5 * bm.stent->crimped_profile);
@@ -219,6 +220,7 @@ void ProcedureState::hash_into(StateHasher& h) const {
     h.add_value(b.lumen_time);
     h.add_value(b.lumen_epoch);
     h.add(b.s);
+    h.add(b.hold_excess);
   }
   for (const StentState& s : stents) {
     h.add_value(static_cast<int>(s.phase));
@@ -379,6 +381,7 @@ void procedure_before_step(const ProcedureModel& m, const SolverModel& sm, const
     std::fill(st.radius.begin(), st.radius.end(), bm.shaft_radius);
     if (p <= 0.0) {
       st.centre.segment = -1;
+      std::fill(st.hold_excess.begin(), st.hold_excess.end(), -1.0);
       continue;
     }
     // Inside the guide (its middle within an outer's inserted length): the guide holds it.
@@ -388,6 +391,7 @@ void procedure_before_step(const ProcedureModel& m, const SolverModel& sm, const
       in_guide = in_guide || inserted(md, in.drive, mid) < solver.instruments[o].drive.depth;
     if (in_guide) {
       st.centre.segment = -1;
+      std::fill(st.hold_excess.begin(), st.hold_excess.end(), -1.0);
       continue;
     }
     st.mid_rest = rest_point(motion, in.rod.x[mid], t);
@@ -472,6 +476,9 @@ void procedure_fit(const ProcedureModel& m, const SolverModel& sm, const VesselT
     if (st.centre.segment < 0) continue;
     const RodModel& md = sm.instruments[bm.instrument].rod();
     BalloonHold& h = solver.instruments[bm.instrument].hold;
+    const std::vector<Vec3>& x = solver.instruments[bm.instrument].rod.x;
+    const double unfold =
+        bm.spec.chart_pressure.empty() ? bm.spec.nominal_pressure : bm.spec.chart_pressure.front();
     const VesselSegment& seg = tree.segments[st.centre.segment];
     const double working = bm.spec.length_at(st.pressure);
     const double full = 0.5 * st.free_diameter;
@@ -481,7 +488,10 @@ void procedure_fit(const ProcedureModel& m, const SolverModel& sm, const VesselT
       const int node = bm.first + j;
       const auto e = static_cast<std::size_t>(j);
       const double free = profile_radius(full, bm.shaft_radius, bm.from_distal[j], working);
-      if (free <= bm.shaft_radius) continue;
+      if (free <= bm.shaft_radius) {
+        st.hold_excess[e] = -1.0;
+        continue;
+      }
       const double arc = st.s[e];
       const LumenSection sec = lumen_section(tree, m.spans, ps.opening, st.centre.segment, arc);
       const Vec3 axis =
@@ -501,10 +511,21 @@ void procedure_fit(const ProcedureModel& m, const SolverModel& sm, const VesselT
       st.radius[e] = r;
       h.first = std::min(h.first, node);
       h.last = std::max(h.last, node);
+      const Vec3 tangent = tangent_at(seg, arc);
       h.axis[node] = axis;
-      h.tangent[node] = tangent_at(seg, arc);
+      h.tangent[node] = tangent;
       h.axis_velocity[node] = motion ? motion->velocity(sec.centre, t1) : Vec3::Zero();
-      h.play[node] = std::max(0.0, lumen - r);
+      // Within lumen - r of the axis once unfolded. A node that lay farther out when the balloon
+      // began to press (the folded balloon is wider than the shaft that lay on the wall) is
+      // brought in as it unfolds, over the pressure its chart starts at; drawn onto the axis in
+      // one step, it jerked the shaft and the guide around it (1.8 N on the guide's hand in the
+      // default run as the pressure began to rise).
+      const double play = std::max(0.0, lumen - r);
+      if (st.hold_excess[e] < 0.0) {
+        const Vec3 rel = x[static_cast<std::size_t>(node)] - axis;
+        st.hold_excess[e] = std::max(0.0, (rel - rel.dot(tangent) * tangent).norm() - play);
+      }
+      h.play[node] = play + st.hold_excess[e] * std::clamp(1.0 - st.pressure / unfold, 0.0, 1.0);
       // Pressed on the wall all round: p times the balloon's surface at the node.
       h.wall_load[node] = free >= lumen ? st.pressure * 2.0 * kPi * r * bm.node_length[j] : 0.0;
     }

@@ -159,7 +159,8 @@ std::size_t SimState::bytes() const {
   b += bytes_of(m.tip_path) + bytes_of(m.peak_wall_force) + bytes_of(m.peak_axial_force) +
        bytes_of(m.peak_axial_jump) + bytes_of(m.peak_torque) + bytes_of(m.last_axial_force) +
        bytes_of(m.landmarks) + bytes_of(m.escapes);
-  for (const BalloonState& bs : procedure.balloons) b += bytes_of(bs.radius) + bytes_of(bs.s);
+  for (const BalloonState& bs : procedure.balloons)
+    b += bytes_of(bs.radius) + bytes_of(bs.s) + bytes_of(bs.hold_excess);
   for (const StentState& ss : procedure.stents)
     b += bytes_of(ss.expanded) + bytes_of(ss.ring_s) + bytes_of(ss.ring_radius);
   for (const auto* v :

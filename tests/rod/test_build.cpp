@@ -124,7 +124,9 @@ TEST(RodBuild, CoreTaperRaisesTheModulusAsTheFourthPowerOfALinearCore) {
       ++in_taper;
     }
     EXPECT_NEAR(md.youngs[j], want, 1e-12 * d.youngs_modulus) << "edge " << j;
-    if (j > 0) EXPECT_LE(md.youngs[j], md.youngs[j - 1]) << "edge " << j;
+    if (j > 0) {
+      EXPECT_LE(md.youngs[j], md.youngs[j - 1]) << "edge " << j;
+    }
     EXPECT_NEAR(md.shear[j] / md.youngs[j], md.shear[0] / md.youngs[0], 1e-12);
   }
   EXPECT_EQ(in_taper, 100);
