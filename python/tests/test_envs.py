@@ -110,6 +110,43 @@ def test_bad_actions_and_options_raise():
         envs.ArchNavigation(control_hz=0)
 
 
+class _FailingStarts(envs.ArchNavigation):
+    """An arch environment whose first `fail` starts cannot be made, as a coronary start whose
+    guide does not seat."""
+
+    def __init__(self, fail, **kw):
+        super().__init__(**kw)
+        self.fail = fail
+        self.built = []
+
+    def _build(self, ep):
+        self.built.append(ep)
+        if len(self.built) <= self.fail:
+            raise envs.StartFailed(f"start {len(self.built)} failed on purpose")
+        return super()._build(ep)
+
+
+def test_a_start_that_fails_is_drawn_again_up_to_max_redraws():
+    env = _FailingStarts(2, max_redraws=3)
+    obs, info = env.reset(seed=7)
+    assert info["redraws"] == 2 and len(env.built) == 3
+    # The seed still decides the episode: the third draw of its generator.
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        drawn = env._draw(rng)
+    assert drawn == env.built[-1] == info["episode"]
+    env.close()
+    env = _FailingStarts(10, max_redraws=3)
+    with pytest.raises(envs.StartFailed, match="4 draws in a row could not be started"):
+        env.reset(seed=7)
+    assert len(env.built) == 4
+    env.close()
+    with pytest.raises(ValueError, match="max_redraws: expected an integer of 0 or more"):
+        envs.ArchNavigation(max_redraws=-1)
+    with pytest.raises(ValueError, match="max_redraws"):
+        envs.ArchNavigation(max_redraws=2.5)
+
+
 def test_tracking_points_follow_the_wire_and_the_target_is_projected():
     env = envs.ArchNavigation(randomize=False, observation="tracking3d", tracking_points=4)
     obs, info = env.reset(seed=0)

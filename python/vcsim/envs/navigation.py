@@ -14,6 +14,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import math
+import numbers
 
 import numpy as np
 
@@ -64,7 +65,7 @@ class _Navigation(Env):
     def __init__(self, *, control_hz=7.5, max_steps=1000, target_tolerance=5e-3,
                  observation="tracking2d", tracking_points=3, tracking_spacing=2e-3,
                  image_size=128, velocity_limit=(0.05, math.pi), randomize=True,
-                 start_cache=8, render_mode=None, dose=1e4, threads=0):
+                 start_cache=8, render_mode=None, dose=1e4, threads=0, max_redraws=20):
         if observation not in ("tracking2d", "tracking3d", "image"):
             raise ValueError("observation: expected 'tracking2d', 'tracking3d' or 'image', got "
                              f"{observation!r}")
@@ -79,6 +80,9 @@ class _Navigation(Env):
             raise ValueError(f"threads: expected 0 (as many as allowed) or more, got {threads!r}")
         if int(max_steps) < 1 or int(tracking_points) < 1 or int(start_cache) < 1:
             raise ValueError("max_steps, tracking_points and start_cache: expected at least 1")
+        if (isinstance(max_redraws, bool) or not isinstance(max_redraws, numbers.Integral)
+                or max_redraws < 0):
+            raise ValueError(f"max_redraws: expected an integer of 0 or more, got {max_redraws!r}")
         if len(velocity_limit) != 2 or min(velocity_limit) <= 0:
             raise ValueError("velocity_limit: expected (m/s, rad/s), both > 0")
         self.control_hz = float(control_hz)
@@ -91,6 +95,9 @@ class _Navigation(Env):
         self.velocity_limit = (float(velocity_limit[0]), float(velocity_limit[1]))
         self.randomize = bool(randomize)
         self.start_cache = int(start_cache)
+        # Draws thrown away in one reset before it gives up: a coronary LAD/LCx start seats in
+        # a third to a half of its draws, so 5 left about one reset in 20 to 100 raising.
+        self.max_redraws = int(max_redraws)
         self.render_mode = render_mode
         self.dose = float(dose)
         # The most threads a physics step may use (Simulator.threads); ThreadVectorEnv sets 1.
@@ -162,7 +169,7 @@ class _Navigation(Env):
                 self._failed[ep.start_key] = str(e)
                 if given is not None:
                     raise
-                if redraws >= 5:
+                if redraws >= self.max_redraws:
                     raise StartFailed(f"{type(self).__name__}: {redraws + 1} draws in a row "
                                       f"could not be started; the last: {e}") from e
                 redraws += 1
@@ -442,8 +449,8 @@ class CoronaryNavigation(_Navigation):
     Not every draw can be started: the autopilot seats the JL4 in the left main in a third to a
     half of the LAD/LCx draws (fewer in a wider aorta) and the JR4 in the RCA in more than half
     of the RCA draws
-    (docs/measurements.md); reset() draws again, up to five times, and info["redraws"] counts
-    them.
+    (docs/measurements.md); reset() draws again, up to max_redraws (20) times, and
+    info["redraws"] counts them.
     """
 
     TARGETS = ("lad", "lcx", "rca")
