@@ -55,7 +55,7 @@ def make_policy(name: str, env, seed: int):
 
 def run_episode(env, policy_name: str, seed: int, max_steps: int | None = None) -> dict:
     obs, info = env.reset(seed=seed)
-    reset_info = info
+    redraws = int(info["redraws"])
     policy = make_policy(policy_name, env, seed)
     total, steps, done = 0.0, 0, False
     t0 = time.perf_counter()
@@ -73,7 +73,7 @@ def run_episode(env, policy_name: str, seed: int, max_steps: int | None = None) 
             "path_length_mm": round(info["path_length"] * 1e3, 3),
             "target": ep.target_segment, "anatomy": ep.anatomy,
             "instruments": list(ep.instruments), "gave_up": gave_up,
-            "redraws": int(reset_info.get("redraws", 0)),
+            "redraws": redraws,
             "state_hash": env.sim.state_hash,
             "wall_s": time.perf_counter() - t0}
 
