@@ -90,7 +90,7 @@ class RunDisplay : public RunObserver {
   void after_step(const Simulator& sim) override {
     for (const std::string& line : escapes_.fresh(sim)) {
       if (bar_) std::fprintf(stderr, "\n");
-      std::cerr << "run: ESCAPE: " << line << "\n";
+      std::cerr << "run: " << line << "\n";
     }
     if (film_) film_->after_step(sim);
     if (force_log_) force_log_->after_step(sim);

@@ -55,8 +55,7 @@ class SoakConsole : public RunObserver {
   }
   void after_step(const Simulator& sim) override {
     if (log_) log_->after_step(sim);
-    for (const std::string& line : escapes_.fresh(sim))
-      std::cerr << "soak: ESCAPE: " << line << std::endl;
+    for (const std::string& line : escapes_.fresh(sim)) std::cerr << "soak: " << line << std::endl;
     const SimMetrics& m = sim.metrics();
     if (progress_ && sim.time() >= next_minute_) {
       next_minute_ += 60.0;

@@ -465,6 +465,9 @@ class BeatingLumen {
   void move_and_query(double t, std::span<const Vec3> centres, std::span<const double> radii,
                       std::span<LeafCache* const> caches, double slack,
                       std::span<SphereContact> out);
+  // Where segment a-b crosses the wall at t: the static part's tree and the moving patches near
+  // it, moved to t as move_and_query moves them. Allocates nothing.
+  SegmentCrossings segment_crossings(double t, const Vec3& a, const Vec3& b);
   // Moves every patch (rendering, tests); the same as update() with spheres everywhere.
   BeatingLumenProfile update_all(double t);
 

@@ -29,6 +29,7 @@ class BeatingWall final : public VesselWall {
   // max |a_cardiac| max |dc/dt| + max |a_resp| max |dr/dt| over the moving wall.
   double speed_bound() const override { return speed_bound_; }
   bool moves_near(const Vec3& centre, double radius) const override;
+  SegmentCrossings segment_crossings(const Vec3& a, const Vec3& b) override;
 
  private:
   BeatingLumen* lumen_;

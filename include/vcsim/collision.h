@@ -6,6 +6,7 @@
 
 #include "vcsim/core.h"
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <limits>
@@ -119,6 +120,26 @@ struct ClosestPoint {
 
 // Closest point to p on triangle (a, b, c) by Voronoi regions (Ericson, RTCD 5.1.5).
 ClosestPoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c);
+
+// Where segment a-b crosses triangle (v0, v1, v2), either face: its parameter t in [0, 1] along
+// a-b, or -1 when it does not (Moller and Trumbore 1997; a segment in the triangle's plane does
+// not cross it).
+double segment_triangle_crossing(const Vec3& a, const Vec3& b, const Vec3& v0, const Vec3& v1,
+                                 const Vec3& v2);
+
+// The first and last crossings of segment a-b with a mesh's triangles, as parameters along it.
+struct SegmentCrossings {
+  int count = 0;  // triangles crossed
+  double first = 2.0, last = -1.0;
+  void add(double t) {
+    ++count;
+    first = std::min(first, t);
+    last = std::max(last, t);
+  }
+};
+
+// Every triangle of `mesh` tested, without a tree (a beating lumen's small patches).
+SegmentCrossings segment_crossings_each(const TriangleMesh& mesh, const Vec3& a, const Vec3& b);
 
 // ---------------------------------------------------------------------------------------------
 // AABB tree
@@ -250,6 +271,10 @@ class AabbTree {
                              double slack, LeafCache& cache,
                              const SphereQuerySettings& settings = {}) const;
 
+  // The crossings of segment a-b with the mesh the tree was built on (the leaves whose boxes the
+  // segment passes through, by the slab test).
+  SegmentCrossings segment_crossings(const TriangleMesh& mesh, const Vec3& a, const Vec3& b) const;
+
   // Batch query for N spheres into preallocated outputs: out[i] for centres[i], radii[i]
   // (radii may hold one value for all). Allocates nothing.
   void query_spheres(const TriangleMesh& mesh, std::span<const Vec3> centres,
@@ -344,6 +369,10 @@ class VesselWall {
     (void)radius;
     return speed_bound() > 0.0;
   }
+  // Where segment a-b (an edge between two nodes) crosses the lumen's wall at the time set: the
+  // mesh only, not a stent or a cap. Used sparsely, by the escape check of the edges between
+  // nodes (physics.md 6.3). Allocates nothing.
+  virtual SegmentCrossings segment_crossings(const Vec3& a, const Vec3& b) = 0;
   // The lumen's open ends at the time set (none by default): a node beyond one has left the
   // vessel (the solver's escape check, physics.md 6.3), unless the end is closed (its cap's
   // contacts say so instead). Allocates nothing.
@@ -364,6 +393,9 @@ class StaticWall final : public VesselWall {
   void query_spheres(std::span<const Vec3> centres, std::span<const double> radii,
                      std::span<LeafCache* const> caches, double slack,
                      std::span<SphereContact> out) override;
+  SegmentCrossings segment_crossings(const Vec3& a, const Vec3& b) override {
+    return tree_->segment_crossings(*mesh_, a, b);
+  }
   // The mesh's open ends (none unless set).
   void set_exits(std::vector<WallExit> exits) { exits_ = std::move(exits); }
   std::span<const WallExit> exits() override { return exits_; }

@@ -325,8 +325,9 @@ struct LandmarkRecord {
 
 // An instrument's nodes found outside the vessel (physics.md 6.3): behind the lumen's wall by
 // more than their radius, or beyond an open end of the vessel tree. Seen by the contact queries.
+// The same record holds its edges seen through the wall (SimMetrics::edge_crossings; `edge`).
 struct EscapeRecord {
-  std::int64_t steps = 0;  // steps in which one of its nodes was seen outside
+  std::int64_t steps = 0;  // steps in which one of its nodes (or edges) was seen outside
   double time = -1.0;      // s, the first such step's end; < 0: none
   int node = -1;           // the first step's node farthest out
   double distance = 0.0;   // m, how far out it was: behind the wall or a closed end's cap, or
@@ -335,7 +336,11 @@ struct EscapeRecord {
   // end's cap (physics.md 6.4); -1: the wall
   int exit = -1;
   double max_distance = 0.0;  // m, the farthest out seen
-  // The first step's node: where it was (m) and the tree's place nearest it at rest (locate())
+  // An edge (nodes node, node + 1) through the wall, both nodes inside, and `distance` its
+  // deepest point's behind it (physics.md 6.3)
+  bool edge = false;
+  // The first step's node (an edge's deepest point): where it was (m) and the tree's place
+  // nearest it at rest (locate())
   Vec3 position = Vec3::Zero();
   TreeLocation near;
 };
@@ -363,6 +368,11 @@ struct SimMetrics {
   std::int64_t calmed_steps = 0;
   std::vector<EscapeRecord> escapes;  // (instrument)
   std::int64_t escape_steps = 0;      // steps in which any instrument was seen outside the vessel
+  // (instrument) Its edges seen through the wall between two nodes inside the vessel, checked
+  // every SolverSettings::edge_check_period (physics.md 6.3): reported, and kept apart from the
+  // escapes until the edges have contacts of their own (the default run has one, 0.5 mm deep).
+  std::vector<EscapeRecord> edge_crossings;
+  std::int64_t edge_crossing_checks = 0;  // checks that found an edge through the wall
 };
 
 struct SimState {
@@ -704,7 +714,9 @@ struct RunOutcome {
 // 'wire' node 250 left the vessel through the open end of 'main' (start), 3.1 mm beyond it".
 std::string describe_escape(const SimModel& model, int i, const EscapeRecord& e);
 // Each instrument's first escape, once: after a step, fresh() gives the describe_escape lines of
-// the instruments seen outside the vessel for the first time. Keyed by name, so an instrument
+// the instruments seen outside the vessel for the first time ("ESCAPE: ..."), and of those with
+// an edge seen through the wall for the first time ("EDGE: ...", SimMetrics::edge_crossings).
+// Keyed by name, so an instrument
 // exchanged for another of the same name is not reported again. The consoles of `vcsim run`
 // and `vcsim soak` print them as they happen.
 class EscapeReporter {
@@ -712,8 +724,9 @@ class EscapeReporter {
   std::vector<std::string> fresh(const Simulator& sim);
 
  private:
-  std::int64_t escape_steps_ = 0;
-  std::vector<std::string> reported_;  // names of the instruments whose escape was reported
+  std::int64_t escape_steps_ = 0, edge_checks_ = 0;
+  std::vector<std::string> reported_;        // names of the instruments whose escape was reported
+  std::vector<std::string> reported_edges_;  // ... whose edge crossing was reported
 };
 RunOutcome run_outcome(const Simulator& sim, const RunReport& report);
 

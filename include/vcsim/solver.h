@@ -93,6 +93,11 @@ struct NodeEscape {
   // The wall's exit (index in VesselWall::exits) it left by, through its disc or, for a closed
   // end, through its cap; -1: the wall
   int exit = -1;
+  // An edge seen through the wall instead, both its nodes inside (physics.md 6.3): `node` is its
+  // first node, `distance` its deepest point's behind the wall, `along` where that point lies on
+  // it (0 .. 1).
+  bool edge = false;
+  double along = 0.0;
 };
 
 // One wire node held inside the outer instrument's lumen in the last step (concentric
@@ -146,6 +151,10 @@ struct CouplingModel {
 struct SolverSettings {
   RodSettings rod;
   bool collisions = true;
+  // s of simulated time between checks of the edges between free nodes against the wall (an
+  // escape the nodes' own queries cannot see, physics.md 6.3); 0: every step. It changes no
+  // state, only what is reported, so it is not part of the model's hash.
+  double edge_check_period = 0.05;
   double contact_margin = 2e-4;         // m, speculative: contacts within this gap are solved
   double penetration_correction = 0.5;  // fraction of a penetration removed per step
   double coherence_margin = 0.6e-3;     // m, query radius beyond contact reach (for skipping)
@@ -325,6 +334,9 @@ class SolverWorkspace {
   // The instrument's node farthest outside the vessel over the last step's fine steps (node -1:
   // none; a step undone by a rollback has none).
   NodeEscape escape(int instrument) const;
+  // The instrument's edge deepest through the wall, both its nodes inside, if the last step
+  // checked the edges (SolverSettings::edge_check_period; node -1: none or not checked).
+  NodeEscape edge_escape(int instrument) const;
 
   // Forgets what the leaf caches know of the wall (after the wall changed shape).
   void clear_caches();

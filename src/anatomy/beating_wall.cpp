@@ -36,6 +36,10 @@ void BeatingWall::query_spheres(std::span<const Vec3> centres, std::span<const d
   lumen_->move_and_query(time_, centres, radii, caches, slack, out);
 }
 
+SegmentCrossings BeatingWall::segment_crossings(const Vec3& a, const Vec3& b) {
+  return lumen_->segment_crossings(time_, a, b);
+}
+
 bool BeatingWall::moves_near(const Vec3& centre, double radius) const {
   return lumen_->moves_near(centre, radius);
 }

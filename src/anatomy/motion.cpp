@@ -573,6 +573,32 @@ void BeatingLumen::move_and_query(double t, std::span<const Vec3> centres,
   }
 }
 
+SegmentCrossings BeatingLumen::segment_crossings(double t, const Vec3& a, const Vec3& b) {
+  SegmentCrossings out;
+  auto merge = [&](const SegmentCrossings& part) {
+    if (part.count == 0) return;
+    out.count += part.count;
+    out.first = std::min(out.first, part.first);
+    out.last = std::max(out.last, part.last);
+  };
+  if (!static_.global_triangle.empty()) merge(static_.tree.segment_crossings(static_.mesh, a, b));
+  if (phase_grids_.empty()) return out;
+  const double c = motion_.cardiac_waveform(t), r = motion_.respiratory_waveform(t);
+  const auto k =
+      static_cast<std::size_t>(std::lround(c * static_cast<double>(phase_grids_.size() - 1)));
+  const PatchGrid& grid = phase_grids_[std::min(k, phase_grids_.size() - 1)];
+  // The sphere round the segment: every patch it may cross lies within reach of it.
+  const Vec3 mid = 0.5 * (a + b);
+  const double half = 0.5 * (b - a).norm();
+  for_each_candidate(grid, mid, half, [&](int pi) {
+    Patch& p = patches_[static_cast<std::size_t>(pi)];
+    if (!overlaps(box_at(p, c, r), mid, half)) return;
+    if (p.time != t) move_patch(p, c, r, t);
+    merge(segment_crossings_each(p.mesh, a, b));
+  });
+  return out;
+}
+
 void BeatingLumen::morph(std::span<const Vec3> rest_positions) {
   assert(rest_positions.size() + 1 == morph_start_.size());
   bool static_moved = false;

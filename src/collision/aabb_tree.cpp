@@ -396,6 +396,54 @@ SphereContact finish(const TriangleMesh& mesh, const Accumulator& acc, const Vec
 
 }  // namespace
 
+namespace {
+// Whether segment a + t d, t in [0, 1], passes through box b (the slab test; inv = 1 / d per axis,
+// infinite along an axis d does not move on).
+bool segment_meets_box(const Aabb& b, const Vec3& a, const Vec3& inv) {
+  double lo = 0.0, hi = 1.0;
+  for (int k = 0; k < 3; ++k) {
+    if (std::isinf(inv[k])) {
+      if (a[k] < b.lo[k] || a[k] > b.hi[k]) return false;
+      continue;
+    }
+    double t0 = (b.lo[k] - a[k]) * inv[k], t1 = (b.hi[k] - a[k]) * inv[k];
+    if (t0 > t1) std::swap(t0, t1);
+    lo = std::max(lo, t0);
+    hi = std::min(hi, t1);
+    if (lo > hi) return false;
+  }
+  return true;
+}
+}  // namespace
+
+SegmentCrossings AabbTree::segment_crossings(const TriangleMesh& mesh, const Vec3& a,
+                                             const Vec3& b) const {
+  SegmentCrossings c;
+  if (nodes_.empty()) return c;
+  const Vec3 d = b - a;
+  const Vec3 inv(1.0 / d.x(), 1.0 / d.y(), 1.0 / d.z());
+  if (!segment_meets_box(nodes_[0].box, a, inv)) return c;
+  std::array<int, kMaxDepth + 2> stack;
+  int top = 0;
+  stack[top++] = 0;
+  while (top > 0) {
+    const AabbNode& node = nodes_[stack[--top]];
+    if (node.is_leaf()) {
+      for (int k = node.first; k < node.first + node.count; ++k) {
+        const auto& tri = mesh.triangles[static_cast<std::size_t>(order_[k])];
+        const double t = segment_triangle_crossing(a, b, mesh.vertices[tri[0]],
+                                                   mesh.vertices[tri[1]], mesh.vertices[tri[2]]);
+        if (t >= 0.0) c.add(t);
+      }
+      continue;
+    }
+    const int l = node.first;
+    if (segment_meets_box(nodes_[l].box, a, inv)) stack[top++] = l;
+    if (segment_meets_box(nodes_[l + 1].box, a, inv)) stack[top++] = l + 1;
+  }
+  return c;
+}
+
 SphereContact AabbTree::query_sphere(const TriangleMesh& mesh, const Vec3& centre, double radius,
                                      const SphereQuerySettings& settings) const {
   if (nodes_.empty()) return {};

@@ -1,6 +1,8 @@
 // Triangle-level geometry: normals and the closest point on a triangle.
 #include "vcsim/collision.h"
 
+#include <cmath>
+
 namespace vcsim {
 
 void TriangleMesh::recompute_normals() {
@@ -60,6 +62,38 @@ ClosestPoint closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3&
   const double v = vb * denom;
   const double w = vc * denom;
   return {a + v * ab + w * ac, TriangleRegion::kFace};
+}
+
+// Moller and Trumbore, "Fast, minimum storage ray-triangle intersection" (1997): the crossing's
+// barycentric coordinates and parameter from one determinant, for either face.
+double segment_triangle_crossing(const Vec3& a, const Vec3& b, const Vec3& v0, const Vec3& v1,
+                                 const Vec3& v2) {
+  const Vec3 d = b - a;
+  const Vec3 e1 = v1 - v0, e2 = v2 - v0;
+  const Vec3 p = d.cross(e2);
+  const double det = e1.dot(p);
+  // Parallel to the plane (or a degenerate triangle): no crossing. Relative to the sizes, so
+  // that it holds in metres and millimetres alike.
+  if (std::abs(det) <= 1e-12 * d.norm() * e1.norm() * e2.norm()) return -1.0;
+  const double inv = 1.0 / det;
+  const Vec3 s = a - v0;
+  const double u = s.dot(p) * inv;
+  if (u < 0.0 || u > 1.0) return -1.0;
+  const Vec3 q = s.cross(e1);
+  const double v = d.dot(q) * inv;
+  if (v < 0.0 || u + v > 1.0) return -1.0;
+  const double t = e2.dot(q) * inv;
+  return t >= 0.0 && t <= 1.0 ? t : -1.0;
+}
+
+SegmentCrossings segment_crossings_each(const TriangleMesh& mesh, const Vec3& a, const Vec3& b) {
+  SegmentCrossings c;
+  for (const auto& tri : mesh.triangles) {
+    const double t = segment_triangle_crossing(a, b, mesh.vertices[tri[0]], mesh.vertices[tri[1]],
+                                               mesh.vertices[tri[2]]);
+    if (t >= 0.0) c.add(t);
+  }
+  return c;
 }
 
 }  // namespace vcsim

@@ -57,6 +57,7 @@ SimState carry_sim_state(const SimModel& from, const SimState& st, const SimMode
   m.peak_torque = by_name(st.metrics.peak_torque, 0.0);
   m.last_axial_force = by_name(st.metrics.last_axial_force, std::nan(""));
   m.escapes = by_name(st.metrics.escapes, EscapeRecord{});
+  m.edge_crossings = by_name(st.metrics.edge_crossings, EscapeRecord{});
   // The procedure as it is (balloons keep their indices); an added balloon's state after them.
   out.procedure = st.procedure;
   extend_procedure_state(to.procedure, out.procedure, out.solver);

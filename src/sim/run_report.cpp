@@ -55,6 +55,7 @@ nlohmann::json escape_json(const SimModel& md, const EscapeRecord& e) {
   return {{"steps", e.steps},
           {"first_time_s", e.time},
           {"node", e.node},
+          {"edge", e.edge},
           {"distance_mm", e.distance * 1e3},
           {"where", escape_where(md, e.exit)},
           {"max_distance_mm", e.max_distance * 1e3},
@@ -68,9 +69,15 @@ nlohmann::json escape_json(const SimModel& md, const EscapeRecord& e) {
 }  // namespace
 
 std::string describe_escape(const SimModel& md, int i, const EscapeRecord& e) {
-  char buf[160];
-  std::snprintf(buf, sizeof buf, "t = %.4f s: '%s' node %d is outside the vessel, ", e.time,
-                md.instrument_name(i).c_str(), e.node);
+  char buf[256];
+  if (e.edge)
+    std::snprintf(buf, sizeof buf,
+                  "t = %.4f s: '%s' edge %d-%d passes through the wall between nodes inside the "
+                  "vessel, its deepest point ",
+                  e.time, md.instrument_name(i).c_str(), e.node, e.node + 1);
+  else
+    std::snprintf(buf, sizeof buf, "t = %.4f s: '%s' node %d is outside the vessel, ", e.time,
+                  md.instrument_name(i).c_str(), e.node);
   std::string s = buf;
   std::snprintf(buf, sizeof buf, "%.2f mm", e.distance * 1e3);
   std::string near;
@@ -89,15 +96,24 @@ std::string describe_escape(const SimModel& md, int i, const EscapeRecord& e) {
 std::vector<std::string> EscapeReporter::fresh(const Simulator& sim) {
   std::vector<std::string> lines;
   const SimMetrics& m = sim.metrics();
-  if (m.escape_steps == escape_steps_) return lines;
-  escape_steps_ = m.escape_steps;
-  for (int i = 0; i < sim.num_instruments(); ++i) {
-    const EscapeRecord& e = m.escapes[static_cast<std::size_t>(i)];
-    const std::string& name = sim.model().instrument_name(i);
-    if (e.steps == 0 || std::find(reported_.begin(), reported_.end(), name) != reported_.end())
-      continue;
-    reported_.push_back(name);
-    lines.push_back(describe_escape(sim.model(), i, e));
+  auto report = [&](const std::vector<EscapeRecord>& records, std::vector<std::string>& reported,
+                    const char* label) {
+    for (int i = 0; i < sim.num_instruments(); ++i) {
+      const EscapeRecord& e = records[static_cast<std::size_t>(i)];
+      const std::string& name = sim.model().instrument_name(i);
+      if (e.steps == 0 || std::find(reported.begin(), reported.end(), name) != reported.end())
+        continue;
+      reported.push_back(name);
+      lines.push_back(label + describe_escape(sim.model(), i, e));
+    }
+  };
+  if (m.escape_steps != escape_steps_) {
+    escape_steps_ = m.escape_steps;
+    report(m.escapes, reported_, "ESCAPE: ");
+  }
+  if (m.edge_crossing_checks != edge_checks_) {
+    edge_checks_ = m.edge_crossing_checks;
+    report(m.edge_crossings, reported_edges_, "EDGE: ");
   }
   return lines;
 }
@@ -185,6 +201,7 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
   j["steps"] = m.steps;
   j["rollbacks"] = m.rollbacks;
   j["escape_steps"] = m.escape_steps;
+  j["edge_crossing_checks"] = m.edge_crossing_checks;
   j["stopped_on_escape"] = r.loop.stopped_on_escape;
   j["resplit_steps"] = m.resplit_steps;
   j["runaway_steps"] = m.runaway_steps;
@@ -200,20 +217,22 @@ void write_run_metrics(const std::filesystem::path& file, const Simulator& sim,
   for (int i = 0; i < sim.num_instruments(); ++i) {
     const InstrumentState& in = sim.instrument(i);
     const TreeHit h = sim.tip_location(i);
-    insts.push_back({{"name", sc.instruments[i].name},
-                     {"catalogue", sc.instruments[i].catalogue},
-                     {"nodes", sim.rod_model(i).n},
-                     {"inserted_mm", in.drive.depth * 1e3},
-                     {"tip_path_mm", m.tip_path[i] * 1e3},
-                     {"peak_wall_force_n", m.peak_wall_force[i]},
-                     {"peak_axial_force_n", m.peak_axial_force[i]},
-                     {"peak_axial_jump_n", m.peak_axial_jump[i]},
-                     {"peak_torque_nmm", m.peak_torque[i] * 1e3},
-                     {"tip_segment", in.drive.depth > 0 ? sim.tree().segments[h.loc.segment].name
-                                                        : std::string("outside")},
-                     {"tip_distance_mm", h.loc.distance * 1e3},
-                     {"escape", escape_json(sim.model(), m.escapes[static_cast<std::size_t>(i)])},
-                     {"final_shape_mm", shape_json(sim.rod_model(i), in)}});
+    insts.push_back(
+        {{"name", sc.instruments[i].name},
+         {"catalogue", sc.instruments[i].catalogue},
+         {"nodes", sim.rod_model(i).n},
+         {"inserted_mm", in.drive.depth * 1e3},
+         {"tip_path_mm", m.tip_path[i] * 1e3},
+         {"peak_wall_force_n", m.peak_wall_force[i]},
+         {"peak_axial_force_n", m.peak_axial_force[i]},
+         {"peak_axial_jump_n", m.peak_axial_jump[i]},
+         {"peak_torque_nmm", m.peak_torque[i] * 1e3},
+         {"tip_segment",
+          in.drive.depth > 0 ? sim.tree().segments[h.loc.segment].name : std::string("outside")},
+         {"tip_distance_mm", h.loc.distance * 1e3},
+         {"escape", escape_json(sim.model(), m.escapes[static_cast<std::size_t>(i)])},
+         {"edge_crossing", escape_json(sim.model(), m.edge_crossings[static_cast<std::size_t>(i)])},
+         {"final_shape_mm", shape_json(sim.rod_model(i), in)}});
   }
   j["instruments"] = insts;
   nlohmann::json lms = nlohmann::json::array();
@@ -341,6 +360,13 @@ void print_run_summary(std::ostream& out, const Simulator& sim, const RunReport&
     for (int i = 0; i < sim.num_instruments(); ++i)
       if (m.escapes[static_cast<std::size_t>(i)].steps > 0)
         out << "           " << describe_escape(sim.model(), i, m.escapes[i]) << "\n";
+  }
+  if (m.edge_crossing_checks > 0) {
+    out << "  EDGES:   " << m.edge_crossing_checks
+        << " check(s) with an edge through the wall between nodes inside the vessel\n";
+    for (int i = 0; i < sim.num_instruments(); ++i)
+      if (m.edge_crossings[static_cast<std::size_t>(i)].steps > 0)
+        out << "           " << describe_escape(sim.model(), i, m.edge_crossings[i]) << "\n";
   }
   out << "  metrics: " << metrics.string() << "\n";
 }

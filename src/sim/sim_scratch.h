@@ -48,6 +48,10 @@ class ProcedureWall final : public VesselWall {
   // The lumen's moving parts, and near a deployed stent (it beats with its vessel) whenever the
   // lumen moves at all.
   bool moves_near(const Vec3& centre, double radius) const override;
+  // The lumen's wall only: a stent lies inside the vessel and a cap beyond its end.
+  SegmentCrossings segment_crossings(const Vec3& a, const Vec3& b) override {
+    return lumen->segment_crossings(a, b);
+  }
   std::span<const WallExit> exits() override;
 
  private:

@@ -86,6 +86,7 @@ SimState make_sim_state(const SimModel& md) {
   m.last_axial_force.assign(n, std::nan(""));
   m.landmarks.assign(md.scenario.landmarks.size(), LandmarkRecord{});
   m.escapes.assign(n, EscapeRecord{});
+  m.edge_crossings.assign(n, EscapeRecord{});
   st.procedure = make_procedure_state(md.procedure, st.solver);
   st.random.state = md.scenario.seed;
   return st;
@@ -118,9 +119,8 @@ std::uint64_t SimState::hash() const {
     h.add_value(m.runaway_steps);
     h.add_value(m.calmed_steps);
   }
-  if (m.escape_steps > 0) {
-    h.add_value(m.escape_steps);
-    for (const EscapeRecord& e : m.escapes) {
+  auto add_records = [&h](const std::vector<EscapeRecord>& records) {
+    for (const EscapeRecord& e : records) {
       h.add_value(e.steps);
       h.add_value(e.time);
       h.add_value(e.node);
@@ -131,6 +131,14 @@ std::uint64_t SimState::hash() const {
       h.add_value(e.near.segment);
       h.add_value(e.near.distance);
     }
+  };
+  if (m.escape_steps > 0) {
+    h.add_value(m.escape_steps);
+    add_records(m.escapes);
+  }
+  if (m.edge_crossing_checks > 0) {
+    h.add_value(m.edge_crossing_checks);
+    add_records(m.edge_crossings);
   }
   procedure.hash_into(h);
   h.add_value(random.state);
@@ -158,7 +166,7 @@ std::size_t SimState::bytes() const {
   const SimMetrics& m = metrics;
   b += bytes_of(m.tip_path) + bytes_of(m.peak_wall_force) + bytes_of(m.peak_axial_force) +
        bytes_of(m.peak_axial_jump) + bytes_of(m.peak_torque) + bytes_of(m.last_axial_force) +
-       bytes_of(m.landmarks) + bytes_of(m.escapes);
+       bytes_of(m.landmarks) + bytes_of(m.escapes) + bytes_of(m.edge_crossings);
   for (const BalloonState& bs : procedure.balloons)
     b += bytes_of(bs.radius) + bytes_of(bs.s) + bytes_of(bs.hold_excess);
   for (const StentState& ss : procedure.stents)
@@ -288,7 +296,7 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
   // The last (fine) step's dt: the contact impulses are its.
   const double dt = md.solver.settings[st.solver.split - 1].rod.dt;
   SimMetrics& m = st.metrics;
-  bool escaped = false;
+  bool escaped = false, edge_crossed = false;
   for (std::size_t i = 0; i < st.solver.instruments.size(); ++i) {
     const InstrumentState& in = st.solver.instruments[i];
     if (in.drive.depth > 0.0) m.tip_path[i] += (in.rod.x.back() - old_tips[i]).norm();
@@ -299,17 +307,21 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
       for (const NodeContact& c : ws.contacts(static_cast<int>(i)))
         f = std::max(f, c.lambda_n / dt);
     m.peak_wall_force[i] = std::max(m.peak_wall_force[i], f);
-    // A node outside the vessel (physics.md 6.3), as this step's contact queries saw it.
-    const NodeEscape e = in.parked ? NodeEscape{} : ws.escape(static_cast<int>(i));
-    if (e.node >= 0) {
-      EscapeRecord& rec = m.escapes[i];
+    // A node outside the vessel (physics.md 6.3), as this step's contact queries saw it, and an
+    // edge through the wall, as the step's edge check (if any) saw it.
+    auto record = [&](const NodeEscape& e, EscapeRecord& rec) {
+      if (e.node < 0) return false;
       if (rec.steps == 0) {
         rec.time = st.time();
         rec.node = e.node;
         rec.distance = e.distance;
         rec.exit = e.exit;
-        // Where, for the person reading the report: the node's place and the vessel nearest it.
-        rec.position = in.rod.x[static_cast<std::size_t>(e.node)];
+        rec.edge = e.edge;
+        // Where, for the person reading the report: the node's place (an edge's deepest point)
+        // and the vessel nearest it.
+        const auto k = static_cast<std::size_t>(e.node);
+        rec.position =
+            e.edge ? Vec3(in.rod.x[k] + e.along * (in.rod.x[k + 1] - in.rod.x[k])) : in.rod.x[k];
         rec.near =
             md.locator
                 .locate(md.motion ? md.motion->rest_point(rec.position, st.time()) : rec.position)
@@ -317,7 +329,12 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
       }
       ++rec.steps;
       rec.max_distance = std::max(rec.max_distance, e.distance);
-      escaped = true;
+      return true;
+    };
+    if (!in.parked) {
+      escaped = record(ws.escape(static_cast<int>(i)), m.escapes[i]) || escaped;
+      edge_crossed =
+          record(ws.edge_escape(static_cast<int>(i)), m.edge_crossings[i]) || edge_crossed;
     }
     m.peak_axial_force[i] = std::max(m.peak_axial_force[i], std::abs(in.drive.axial_force));
     m.peak_torque[i] = std::max(m.peak_torque[i], std::abs(in.drive.torque));
@@ -332,6 +349,7 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
     }
   }
   m.escape_steps += escaped ? 1 : 0;
+  m.edge_crossing_checks += edge_crossed ? 1 : 0;
 }
 
 void check_landmarks(const SimModel& md, SimState& st) {

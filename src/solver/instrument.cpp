@@ -797,6 +797,33 @@ void catch_late_movers(const Inst& in, VesselWall& wall, const SolverSettings& s
   }
 }
 
+void check_edges(const Inst& in, VesselWall& wall, const SolverSettings& set) {
+  InstrumentScratch& w = *in.w;
+  w.edge_escape = NodeEscape{};
+  if (w.escape.node >= 0) return;  // a node of it was seen out this step
+  const RodModel& md = in.model();
+  const RodState& st = in.rod();
+  const int first = in.driven() ? in.drive().first_free : 0;
+  for (int i = first; i + 1 < md.n; ++i) {
+    if (!free_node(in, i) || !free_node(in, i + 1)) continue;
+    const Vec3& a = st.x[i];
+    const Vec3& b = st.x[i + 1];
+    const SegmentCrossings c = wall.segment_crossings(a, b);
+    if (c.count < 2) continue;  // in and out again, or it is not through
+    // Its deepest point: midway between where it goes in and out, queried as far as either.
+    const double t = 0.5 * (c.first + c.last);
+    const Vec3 p = a + t * (b - a);
+    const double r = std::max(node_radius(md, i), node_radius(md, i + 1));
+    const double reach = 0.5 * (c.last - c.first) * (b - a).norm() + r + set.contact_margin;
+    SphereContact h;
+    wall.query_spheres(std::span<const Vec3>(&p, 1), std::span<const double>(&reach, 1),
+                       std::span<SphereContact>(&h, 1));
+    if (h.touching && h.centre_outside && h.cap < 0 && h.distance > r &&
+        h.distance > w.edge_escape.distance)
+      w.edge_escape = {i, h.distance, -1, true, t};
+  }
+}
+
 void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWall* wall,
                const SolverSettings& set, std::span<const DriveCommand> cmds, StepProfile* prof) {
   const RodSettings& rs = set.rod;

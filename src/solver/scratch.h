@@ -48,6 +48,8 @@ struct InstrumentScratch {
   std::array<double, 3> stage_us{};   // profile scratch: this instrument's stage times (us)
   // The node farthest outside the vessel so far in this step (reset by each try of the step).
   NodeEscape escape;
+  // An edge seen through the wall by the step's edge check (check_edges; edge true), if any.
+  NodeEscape edge_escape;
 
   void resize(const RodModel& md);
 };
@@ -102,6 +104,11 @@ struct SolverScratch {
 void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWall* wall,
                const SolverSettings& settings, std::span<const DriveCommand> commands,
                StepProfile* profile);
+
+// After a step: the edge between two free nodes that passes through the wall deepest, both nodes
+// inside, its deepest point behind the wall by more than the rod's radius, is the instrument's
+// edge_escape of the step, unless a node was seen out (physics.md 6.3). Changes no state.
+void check_edges(const Inst& in, VesselWall& wall, const SolverSettings& settings);
 
 // After a fine step's positions: fills each driven instrument's DriveState force and torque (raw
 // and low-passed). Inner instruments are evaluated before the outer ones that carry them, whose

@@ -225,6 +225,7 @@ void SolverSettings::validate(const std::string& source) const {
   require_nonnegative(coherence_margin, source, "coherence_margin");
   require_nonnegative(leaf_cache_slack, source, "leaf_cache_slack");
   require_nonnegative(feedback_cutoff_hz, source, "feedback_cutoff_hz");
+  require_nonnegative(edge_check_period, source, "edge_check_period");
   if (rod.integrator == Integrator::kLinearlyImplicit && collisions) {
     // physics.md 5.5: with the physical mass the projected Gauss-Seidel loop of distance chain,
     // contacts and friction does not converge in a usable number of iterations.
@@ -519,6 +520,10 @@ NodeEscape SolverWorkspace::escape(int instrument) const {
   return s_->inst.at(instrument).escape;
 }
 
+NodeEscape SolverWorkspace::edge_escape(int instrument) const {
+  return s_->inst.at(instrument).edge_escape;
+}
+
 // --- step ----------------------------------------------------------------------------------------
 
 StepInfo solver_step(const SolverModel& md, SolverState& st, SolverWorkspace& ws, VesselWall* wall,
@@ -592,6 +597,19 @@ StepInfo solver_step(const SolverModel& md, SolverState& st, SolverWorkspace& ws
     restore_at_rest();
     for (internal::InstrumentScratch& w : s.inst) w.escape = NodeEscape{};
     info.rolled_back = true;
+  }
+  // The edges between free nodes, now and then: one through a ridge of the wall (the carina
+  // between the iliacs) with both its nodes inside is out of the vessel where the nodes' queries
+  // do not see (physics.md 6.3). Checked at the step's end, the wall at that time.
+  for (internal::InstrumentScratch& w : s.inst) w.edge_escape = NodeEscape{};
+  const SolverSettings& set = md.settings[static_cast<std::size_t>(st.split - 1)];
+  const double period = set.edge_check_period;
+  const double t1 = st.time + md.dt();
+  if (finite && wall && set.collisions &&
+      (period <= 0.0 || std::floor(st.time / period) != std::floor(t1 / period))) {
+    wall->set_time(t1);
+    for (const internal::Inst& in : s.bound)
+      if (!in.parked()) internal::check_edges(in, *wall, set);
   }
   st.time += md.dt();
   info.split = st.split;

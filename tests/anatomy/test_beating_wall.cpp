@@ -242,6 +242,9 @@ struct MovingEverywhere final : VesselWall {
   Vec3 velocity(const SphereContact& hit) const override { return w.velocity(hit); }
   double speed_bound() const override { return w.speed_bound(); }
   bool moves_near(const Vec3&, double) const override { return true; }
+  SegmentCrossings segment_crossings(const Vec3& a, const Vec3& b) override {
+    return w.segment_crossings(a, b);
+  }
 };
 
 // The LAD wire of wire_in_lad, but 30 mm along the still abdominal aorta, laid 8 mm off its axis

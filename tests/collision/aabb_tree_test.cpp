@@ -117,6 +117,62 @@ void expect_matches_brute_force(const AabbTree& tree, const TriangleMesh& m, con
   }
 }
 
+// A segment and one triangle: crossed at the right parameter from either side; missed beside
+// it, short of it, and in its plane.
+TEST(SegmentCrossing, OneTriangleFromEitherSide) {
+  const Vec3 v0(0, 0, 0), v1(1, 0, 0), v2(0, 1, 0);
+  EXPECT_NEAR(segment_triangle_crossing(Vec3(0.2, 0.2, -1), Vec3(0.2, 0.2, 3), v0, v1, v2), 0.25,
+              1e-15);
+  EXPECT_NEAR(segment_triangle_crossing(Vec3(0.2, 0.2, 3), Vec3(0.2, 0.2, -1), v0, v1, v2), 0.75,
+              1e-15);
+  EXPECT_LT(segment_triangle_crossing(Vec3(0.8, 0.8, -1), Vec3(0.8, 0.8, 1), v0, v1, v2), 0.0);
+  EXPECT_LT(segment_triangle_crossing(Vec3(0.2, 0.2, 1), Vec3(0.2, 0.2, 3), v0, v1, v2), 0.0);
+  EXPECT_LT(segment_triangle_crossing(Vec3(-1, 0.2, 0), Vec3(2, 0.2, 0), v0, v1, v2), 0.0);
+}
+
+// Segments in and across the bench's bent tube: the tree finds the crossings that testing every
+// triangle finds; a chord between the two legs across the bend's inner side crosses the wall
+// twice, and one along the axis never.
+TEST(SegmentCrossing, TheTreeFindsWhatEveryTriangleGives) {
+  BenchTube t;
+  const BentTubeSpec spec = bench_like_spec();
+  const auto line =
+      bent_centreline(spec.straight1, spec.bend_radius, spec.bend_angle, spec.straight2, 1e-4);
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<std::size_t> pick(0, line.size() - 1);
+  std::normal_distribution<double> offset(0.0, spec.radius);
+  int crossed = 0;
+  for (int i = 0; i < 2000; ++i) {
+    const Vec3 a = line[pick(rng)] + Vec3(offset(rng), offset(rng), offset(rng));
+    const Vec3 b = a + Vec3(offset(rng), offset(rng), offset(rng)) * 3.0;
+    const SegmentCrossings want = segment_crossings_each(t.m, a, b);
+    const SegmentCrossings got = t.tree.segment_crossings(t.m, a, b);
+    ASSERT_EQ(got.count, want.count) << i;
+    if (want.count > 0) {
+      ++crossed;
+      EXPECT_EQ(got.first, want.first);
+      EXPECT_EQ(got.last, want.last);
+    }
+  }
+  EXPECT_GT(crossed, 200) << "many of the segments cross the wall";
+  // The legs: along +z from the origin to z = straight1, then along +x after the bend (the
+  // centreline at z = straight1 + bend_radius). Inner side: +x in the first, -z in the second.
+  const double s1 = spec.straight1, rb = spec.bend_radius, r = spec.radius;
+  // (0.3 mm off the plane y = 0, where the rings' vertices lie: a crossing on an edge between two
+  // triangles would count for both.)
+  const Vec3 y(0, 0.3e-3, 0);
+  const Vec3 in_first = Vec3(r - 0.5e-3, 0, s1 - 10e-3) + y;
+  const Vec3 in_second = Vec3(rb + 10e-3, 0, s1 + rb - r + 0.5e-3) + y;
+  EXPECT_FALSE(t.tree.query_sphere(t.m, in_first, 0.1e-3).touching);
+  EXPECT_FALSE(t.tree.query_sphere(t.m, in_second, 0.1e-3).touching);
+  const SegmentCrossings chord = t.tree.segment_crossings(t.m, in_first, in_second);
+  EXPECT_EQ(chord.count, 2);
+  EXPECT_LT(chord.first, chord.last);
+  EXPECT_EQ(t.tree.segment_crossings(t.m, line[10] + y, line[line.size() - 10] + y).count, 2)
+      << "the axis's end points joined cut the bend too";
+  EXPECT_EQ(t.tree.segment_crossings(t.m, line[10], line[20]).count, 0);
+}
+
 TEST(AabbTree, SphereQueriesMatchBruteForce) {
   const BentTubeSpec spec = bench_like_spec();
   TriangleMesh m = make_bent_tube(spec);

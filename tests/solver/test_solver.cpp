@@ -542,6 +542,51 @@ TEST(Escape, ANodeSpedUpByItsChainDoesNotCrossTheWallUnseen) {
 // slide further than its gap and the margin is queried where it will arrive, and the cap there
 // becomes its second contact: no node ever lies more than its radius beyond the cap (physics.md
 // 6.3).
+// An edge through the wall with both its nodes inside (physics.md 6.3): a tube (radius 2 mm)
+// bent back on itself round a 3 mm bend, its two legs 6 mm apart with 2 mm of wall between them
+// (a ridge, as the carina between the iliacs), and a free rod of two 3.2 mm edges laid straight
+// across at z = 10 mm: nodes at x = -1.8 and 1.4 mm in the first leg, 4.6 mm in the second. Its
+// nodes' queries see no escape; the edge check sees the second edge, its deepest point midway
+// (x = 3 mm) 1.015 mm behind both walls, and reports it apart from the nodes' escapes. The check
+// runs every edge_check_period of simulated time: not in a first step of 0.1 ms at 50 ms.
+TEST(Escape, AnEdgeThroughTheWallBetweenNodesInsideIsSeen) {
+  BentTubeSpec spec;
+  spec.bend_radius = 3e-3;
+  spec.bend_angle = std::numbers::pi;
+  TriangleMesh mesh = make_bent_tube(spec);
+  check_and_repair(mesh);
+  AabbTree tree;
+  tree.build(mesh);
+  const double r = 0.2e-3;
+  auto first_step = [&](const Vec3& from, const Vec3& dir, double length, double period) {
+    RodDef d = test::free_rod(length, 2, r, 2e9);
+    d.base_position = from;
+    d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), dir);
+    test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.0, 0.0});
+    SolverSettings s;
+    s.rod.dt = 1e-4;
+    s.edge_check_period = period;
+    StaticWall wall(mesh, tree);
+    rig.step(&wall, s, std::span<const DriveCommand>(std::vector<DriveCommand>(1)));
+    EXPECT_EQ(rig.ws.escape(0).node, -1) << "no node is out";
+    return rig.ws.edge_escape(0);
+  };
+  // 0.3 mm off the plane of the rings' vertices.
+  const Vec3 from(-1.8e-3, 0.3e-3, 10e-3);
+  const NodeEscape e = first_step(from, Vec3::UnitX(), 6.4e-3, 0.0);
+  EXPECT_TRUE(e.edge);
+  EXPECT_EQ(e.node, 1);
+  EXPECT_EQ(e.exit, -1);
+  EXPECT_NEAR(e.distance, 1.015e-3, 0.02e-3);
+  EXPECT_NEAR(e.along, 0.5, 0.02);
+  EXPECT_EQ(first_step(from, Vec3::UnitX(), 6.4e-3, 0.05).node, -1) << "no check in this step";
+  // The same rod along the first leg's axis: inside, no escape.
+  EXPECT_EQ(first_step(Vec3(0, 0.3e-3, 2e-3), Vec3::UnitZ(), 16e-3, 0.0).node, -1);
+  SolverSettings bad;
+  bad.edge_check_period = -1.0;
+  EXPECT_THROW(bad.validate(), InputError);
+}
+
 TEST(Escape, ANodeSlidingAlongOneWallDoesNotCrossAnotherUnseen) {
   const double length = 0.06, radius = 2.0e-3, r = 0.2e-3, dt = 1e-3;
   StraightTube tube(radius, length, /*cap=*/true);
