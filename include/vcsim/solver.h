@@ -80,6 +80,10 @@ struct NodeContact {
   // Normal impulse (N s) pressing the node on the wall besides the contact's own, for friction
   // only: an inflated balloon's pressure on the vessel (BalloonHold), which anchors it.
   double preload = 0.0;
+  // An edge's contact (SolverWorkspace::edge_contacts): at the point (1 - along) x[node] + along
+  // x[node + 1] of the edge from `node`, its impulses shared by the two nodes in those weights.
+  // 0 for a node's own contact.
+  double along = 0.0;
 };
 
 // A node found outside the vessel in a step (an output: SolverWorkspace::escape; physics.md
@@ -155,6 +159,13 @@ struct SolverSettings {
   // escape the nodes' own queries cannot see, physics.md 6.3); 0: every step. It changes no
   // state, only what is reported, so it is not part of the model's hash.
   double edge_check_period = 0.05;
+  // Collision samples between the nodes (physics.md 6.3): an edge longer than this (m, at rest)
+  // gets evenly spaced points no farther apart, queried against the wall as spheres of the rod's
+  // radius; where one comes nearer the wall than the edge's nodes (a ridge such as a carina, the
+  // inner side of a bend), it gets a contact shared by the two nodes. 0: only the nodes collide.
+  // The first split's value sizes the workspace. 6 mm reaches only long shaft edges: at 2-4 mm
+  // the autopilot no longer steers a wire into the phantom's or the arch's branch (physics.md).
+  double edge_sample_spacing = 6e-3;
   double contact_margin = 2e-4;         // m, speculative: contacts within this gap are solved
   double penetration_correction = 0.5;  // fraction of a penetration removed per step
   double coherence_margin = 0.6e-3;     // m, query radius beyond contact reach (for skipping)
@@ -326,6 +337,8 @@ class SolverWorkspace {
 
   // The last fine step's wall contacts of an instrument (the introducer sheath's lumen included).
   std::span<const NodeContact> contacts(int instrument) const;
+  // ... and the contacts of its edges' collision samples (NodeContact::along; physics.md 6.3).
+  std::span<const NodeContact> edge_contacts(int instrument) const;
   // The last fine step's concentric and rim contacts of a coupling, and its clearance (m).
   std::span<const CoaxialContact> coupling_contacts(int coupling) const;
   double coupling_clearance(int coupling) const;

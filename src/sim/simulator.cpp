@@ -304,8 +304,9 @@ void update_metrics(const SimModel& md, SimState& st, const SolverWorkspace& ws,
     // A parked instrument was not stepped: its contact list is an earlier step's (before a
     // restore, another run's), so it has none this step.
     if (!in.parked)
-      for (const NodeContact& c : ws.contacts(static_cast<int>(i)))
-        f = std::max(f, c.lambda_n / dt);
+      for (const auto& list :
+           {ws.contacts(static_cast<int>(i)), ws.edge_contacts(static_cast<int>(i))})
+        for (const NodeContact& c : list) f = std::max(f, c.lambda_n / dt);
     m.peak_wall_force[i] = std::max(m.peak_wall_force[i], f);
     // A node outside the vessel (physics.md 6.3), as this step's contact queries saw it, and an
     // edge through the wall, as the step's edge check (if any) saw it.

@@ -45,6 +45,8 @@ Vec3 impulse_loads(const Inst& in, const SolverSettings& set, bool coupled) {
   Vec3 f = Vec3::Zero();
   for (const NodeContact& c : in.w->contacts)
     f += ((c.lambda_n - c.lambda_bias) * c.normal + c.lambda_t) / dt;
+  for (const NodeContact& c : in.w->edge_contacts)
+    f += ((c.lambda_n - c.lambda_bias) * c.normal + c.lambda_t) / dt;
   if (coupled)
     for (int i = 0; i < md.n; ++i) f += in.w->coupling_impulse[i] / dt;
   // Applied loads one by one; gravity through the free part's mass. The loops skip what adds
@@ -128,6 +130,14 @@ Vec3 quasi_static_force(std::span<Inst> insts, std::size_t self, std::span<const
     int& first = w.wall_contact_of[w.contacts[k].node];
     (first < 0 ? first : w.wall_contact2_of[w.contacts[k].node]) = k;
   }
+  // The edges' wall contacts (physics.md 6.3), each a reaction candidate of the nearer of its two
+  // nodes (the one pressing hardest where several share a node).
+  std::fill(w.edge_contact_of.begin(), w.edge_contact_of.end(), -1);
+  for (int k = 0; k < static_cast<int>(w.edge_contacts.size()); ++k) {
+    const NodeContact& c = w.edge_contacts[k];
+    int& of = w.edge_contact_of[c.along < 0.5 ? c.node : c.node + 1];
+    if (of < 0 || w.edge_contacts[of].lambda_n < c.lambda_n) of = k;
+  }
   std::fill(w.coupling_of.begin(), w.coupling_of.end(), -1);
   std::fill(w.rim_of.begin(), w.rim_of.end(), -1);
   for (std::size_t pi = 0; pi < couplings.size(); ++pi) {
@@ -188,6 +198,13 @@ Vec3 quasi_static_force(std::span<Inst> insts, std::size_t self, std::span<const
       ++k;
     }
     if (const int r = w.rim_of[i]; r >= 0 && k < 2 && coaxial(w.rim_pair[i], r, out[k])) ++k;
+    if (const int e = w.edge_contact_of[i]; e >= 0 && k < 2) {
+      const NodeContact& c = w.edge_contacts[e];
+      const Vec3 v = (1.0 - c.along) * st.v[c.node] + c.along * st.v[c.node + 1];
+      if (c.lambda_n > 0.0 || c.depth > 0.0)
+        out[k++] = make(c.normal, v - c.wall_velocity, in.im->contact.mu_dynamic,
+                        (c.lambda_n - c.lambda_bias) / dt, nullptr, nullptr);
+    }
     return k;
   };
   Vec3 q = Vec3::Zero();  // Q_i: the internal force of the edge distal to node i (none at the tip)

@@ -229,6 +229,7 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
   const double dt = set.rod.dt;
   w.contacts.clear();
   std::fill(w.room.begin(), w.room.end(), kNoWall);
+  std::fill(w.gap.begin(), w.gap.end(), -1.0);
   int nq = 0;
   const double wall_step = wall.speed_bound() * dt;  // the most a moving wall comes this step
   s.wall_travel += wall_step;
@@ -243,6 +244,7 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
       const double moved = (st.x[i] - s.query_centre[i]).norm() + travel;
       if (moved + reach < s.clearance[i]) {  // the wall cannot be within reach
         w.room[i] = s.clearance[i] - moved - node_radius(md, i) - wall_step;
+        w.gap[i] = s.clearance[i] - moved - wall_step;
         continue;
       }
     }
@@ -272,8 +274,10 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
     if (!h.touching) {
       mark(w.query_radii[k]);
       w.room[i] = w.query_radii[k] - r - wall_step;
+      w.gap[i] = w.query_radii[k] - wall_step;
       continue;
     }
+    w.gap[i] = h.centre_outside ? 0.0 : std::max(0.0, h.distance - wall_step);
     const double depth = h.centre_outside ? r + h.distance : r - h.distance;
     const double reach = node_radius(md, i) + set.contact_margin + st.v[i].norm() * dt - r;
     if (!h.centre_outside && depth < -reach) {
@@ -289,6 +293,72 @@ void detect_contacts(const Inst& in, VesselWall& wall, std::span<const WallExit>
     w.contacts.push_back({i, h.normal, depth, 0.0, Vec3::Zero(), wall.velocity(h)});
   }
   if (prof) prof->num_queries += nq;
+}
+
+// A sample comes nearer the wall than its edge's nodes when its distance is below theirs,
+// interpolated at its place, by this fraction of the rod's radius (a ridge between them).
+constexpr double kSampleNearer = 0.05;
+
+// The contacts of the collision samples between the nodes (physics.md 6.3). Only nodes collide
+// otherwise, and an edge of a long shaft (9-13 mm in the soak's iliacs) can pass a ridge of the
+// wall between them: the carina between two branches, the inner side of a bend. Each sample of an
+// edge between two free nodes is queried as a sphere of the rod's radius (with its own leaf
+// cache) unless the nodes' gaps (InstrumentScratch::gap) keep the wall beyond its reach. A sample
+// nearer the wall than the nodes' distances interpolated to it, or behind the wall, gets a contact
+// at its point; along a flat or hollow wall (a vessel's straight or outer side) it is not nearer,
+// and the nodes' own contacts hold the edge.
+void detect_edge_contacts(const Inst& in, VesselWall& wall, const SolverSettings& set) {
+  InstrumentScratch& w = *in.w;
+  w.edge_contacts.clear();
+  if (w.sample_edge.empty()) return;
+  const RodModel& md = in.model();
+  const RodState& st = in.rod();
+  const double dt = set.rod.dt;
+  const double wall_step = wall.speed_bound() * dt;
+  const int first = in.driven() ? in.drive().first_free : 0;
+  int nq = 0;
+  for (std::size_t k = 0; k < w.sample_edge.size(); ++k) {
+    const int i = w.sample_edge[k];
+    if (i < first || w.gap[i] < 0.0 || w.gap[i + 1] < 0.0) continue;
+    const double t = w.sample_along[k];
+    const Vec3& a = st.x[i];
+    const Vec3& b = st.x[i + 1];
+    const double len = (b - a).norm();
+    const double r = (1.0 - t) * node_radius(md, i) + t * node_radius(md, i + 1);
+    const double reach =
+        r + set.contact_margin + ((1.0 - t) * st.v[i] + t * st.v[i + 1]).norm() * dt + wall_step;
+    // The sample lies t len from node i and (1 - t) len from node i + 1.
+    if (std::max(w.gap[i] - t * len, w.gap[i + 1] - (1.0 - t) * len) > reach) continue;
+    w.sample_query[nq] = static_cast<int>(k);
+    w.sample_points[nq] = a + t * (b - a);
+    w.sample_radii[nq] = reach;
+    w.sample_caches[nq] = &w.sample_cache[k];
+    ++nq;
+  }
+  if (nq == 0) return;
+  wall.query_spheres(std::span<const Vec3>(w.sample_points.data(), nq),
+                     std::span<const double>(w.sample_radii.data(), nq),
+                     std::span<LeafCache* const>(w.sample_caches.data(), nq), set.leaf_cache_slack,
+                     std::span<SphereContact>(w.sample_hits.data(), nq));
+  for (int q = 0; q < nq; ++q) {
+    const SphereContact& h = w.sample_hits[q];
+    if (!h.touching) continue;
+    const auto k = static_cast<std::size_t>(w.sample_query[q]);
+    const int i = w.sample_edge[k];
+    const double t = w.sample_along[k];
+    const double r = (1.0 - t) * node_radius(md, i) + t * node_radius(md, i + 1);
+    if (!h.centre_outside) {
+      const double between = (1.0 - t) * w.gap[i] + t * w.gap[i + 1];
+      if (h.distance > between - kSampleNearer * r) continue;
+    }
+    NodeContact c;
+    c.node = i;
+    c.along = t;
+    c.normal = h.normal;
+    c.depth = h.centre_outside ? r + h.distance : r - h.distance;
+    c.wall_velocity = wall.velocity(h);
+    w.edge_contacts.push_back(c);
+  }
 }
 
 // An inflated balloon (BalloonHold): its nodes are held within `play` of the vessel's axis, the
@@ -349,6 +419,32 @@ void solve_contacts(const Inst& in, const SolverSettings& set, std::size_t first
     v += w * (lt - c.lambda_t);
     c.lambda_t = lt;
   }
+  if (first > 0) return;
+  // The edges' contacts: the point's velocity and inverse mass from its two nodes' (weights
+  // 1 - along and along), an impulse on it shared in the same weights.
+  for (NodeContact& c : in.w->edge_contacts) {
+    const int i = c.node;
+    const double u = 1.0 - c.along, t = c.along;
+    const double wi = u * inv_mass[i], wj = t * inv_mass[i + 1];
+    const double w = u * wi + t * wj;
+    if (w <= 0.0) continue;
+    const double target = c.depth > 0.0 ? beta * c.depth / dt : c.depth / dt;
+    const double vn = (u * vel[i] + t * vel[i + 1] - c.wall_velocity).dot(c.normal);
+    const double ln = std::max(0.0, c.lambda_n + (target - vn) / w);
+    const Vec3 dn = (ln - c.lambda_n) * c.normal;
+    vel[i] += wi * dn;
+    vel[i + 1] += wj * dn;
+    c.lambda_n = ln;
+    const Vec3 vr = u * vel[i] + t * vel[i + 1] - c.wall_velocity;
+    const Vec3 vt = vr - vr.dot(c.normal) * c.normal;
+    Vec3 lt = c.lambda_t - vt / w;
+    const double lt_norm = lt.norm();
+    if (lt_norm > mu_s * ln) lt *= (mu_d * ln) / lt_norm;
+    const Vec3 d_lt = lt - c.lambda_t;
+    vel[i] += wi * d_lt;
+    vel[i + 1] += wj * d_lt;
+    c.lambda_t = lt;
+  }
 }
 
 // The penetration fix-up velocity moved the node out; it must not stay as a bounce. The impulse
@@ -364,6 +460,25 @@ void remove_contact_bias(const Inst& in, const SolverSettings& set) {
     const double removed = std::min(vn, bias);
     v -= removed * c.normal;
     c.lambda_bias = removed / in.ws().inv_mass[c.node];
+  }
+  // An edge's: its point's normal velocity less the bias, taken from both nodes in the weights
+  // that the impulse moved them by.
+  const std::vector<double>& inv_mass = in.ws().inv_mass;
+  std::vector<Vec3>& vel = in.rod().v;
+  for (NodeContact& c : in.w->edge_contacts) {
+    if (c.depth <= 0.0) continue;
+    const int i = c.node;
+    const double u = 1.0 - c.along, t = c.along;
+    const double wi = u * inv_mass[i], wj = t * inv_mass[i + 1];
+    const double w = u * wi + t * wj;
+    if (w <= 0.0) continue;
+    const double vn = (u * vel[i] + t * vel[i + 1] - c.wall_velocity).dot(c.normal);
+    if (vn <= 0.0) continue;
+    const double removed = std::min(vn, set.penetration_correction * c.depth / dt);
+    const double l = removed / w;
+    vel[i] -= (wi * l) * c.normal;
+    vel[i + 1] -= (wj * l) * c.normal;
+    c.lambda_bias = l;
   }
 }
 
@@ -719,8 +834,33 @@ void for_each_active(std::span<Inst> insts, bool parallel, F&& f) {
 
 }  // namespace
 
-void InstrumentScratch::resize(const RodModel& md) {
+void InstrumentScratch::resize(const RodModel& md, double sample_spacing) {
   const int n = md.n;
+  // The collision samples: K = ceil(l / spacing) - 1 evenly spaced inside each edge of rest
+  // length l.
+  sample_edge.clear();
+  sample_along.clear();
+  if (sample_spacing > 0.0) {
+    for (int e = 0; e < md.m; ++e) {
+      const double l = md.rest_length[e];
+      const int k = std::max(0, static_cast<int>(std::ceil(l / sample_spacing - 1e-9)) - 1);
+      for (int j = 1; j <= k; ++j) {
+        sample_edge.push_back(e);
+        sample_along.push_back(static_cast<double>(j) / (k + 1));
+      }
+    }
+  }
+  const std::size_t ns = sample_edge.size();
+  sample_query.assign(ns, 0);
+  sample_points.assign(ns, Vec3::Zero());
+  sample_radii.assign(ns, 0.0);
+  sample_cache.assign(ns, LeafCache{});
+  sample_caches.assign(ns, nullptr);
+  sample_hits.assign(ns, SphereContact{});
+  edge_contacts.clear();
+  edge_contacts.reserve(ns);
+  gap.assign(n, -1.0);
+  edge_contact_of.assign(n, -1);
   rod.resize(md);
   hits.assign(n, SphereContact{});
   query_nodes.assign(n, 0);
@@ -886,9 +1026,11 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
     if (in.parked()) continue;
     if (collide) {
       detect_contacts(in, *wall, exits, set, &p);
+      detect_edge_contacts(in, *wall, set);
       add_access_end_contacts(in, exits, set);
     } else {
       in.w->contacts.clear();
+      in.w->edge_contacts.clear();
     }
     add_sheath_contacts(in, set);
     add_hold_contacts(in, set);

@@ -27,6 +27,22 @@ struct InstrumentScratch {
   // same answer with or without it, so a restored state need not carry it.
   std::vector<LeafCache> leaf_cache;  // (n)
   std::vector<NodeContact> contacts;  // active contacts, capacity n
+  // Collision samples between the nodes (SolverSettings::edge_sample_spacing): each one's edge
+  // and parameter along it, fixed by the rest lengths; their queries; their contacts
+  // (NodeContact::along).
+  std::vector<int> sample_edge;
+  std::vector<double> sample_along;
+  std::vector<int> sample_query;  // (samples) the samples queried this step
+  std::vector<Vec3> sample_points;
+  std::vector<double> sample_radii;
+  std::vector<LeafCache> sample_cache;  // a pure cache, as leaf_cache
+  std::vector<LeafCache*> sample_caches;
+  std::vector<SphereContact> sample_hits;
+  std::vector<NodeContact> edge_contacts;
+  // (n) How near the wall each free node may be now, at least (m; from its query or its
+  // clearance; -1 for a node that does not meet the wall): samples far enough are not queried.
+  std::vector<double> gap;
+  std::vector<int> edge_contact_of;  // (n) hand-force scratch: an edge contact near it (-1: none)
   // (n) How far each node may travel this fine step and still meet no wall that its detection
   // did not see (m; infinity where it is not against the wall; for a node in contact, its gap and
   // the contact margin: held off its own wall only, it may meet another face beyond).
@@ -51,7 +67,7 @@ struct InstrumentScratch {
   // An edge seen through the wall by the step's edge check (check_edges; edge true), if any.
   NodeEscape edge_escape;
 
-  void resize(const RodModel& md);
+  void resize(const RodModel& md, double sample_spacing);
 };
 
 struct CouplingScratch {

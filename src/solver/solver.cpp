@@ -58,6 +58,7 @@ void hash_settings(StateHasher& h, const SolverSettings& s) {
   h.add_value(static_cast<int>(s.hand_force));
   h.add_value(s.feedback_cutoff_hz);
   h.add_value(s.parallel_instruments);
+  h.add_value(s.edge_sample_spacing);
 }
 
 // --- sub-steps (physics.md 5.4) -----------------------------------------------------------------
@@ -226,6 +227,7 @@ void SolverSettings::validate(const std::string& source) const {
   require_nonnegative(leaf_cache_slack, source, "leaf_cache_slack");
   require_nonnegative(feedback_cutoff_hz, source, "feedback_cutoff_hz");
   require_nonnegative(edge_check_period, source, "edge_check_period");
+  require_nonnegative(edge_sample_spacing, source, "edge_sample_spacing");
   if (rod.integrator == Integrator::kLinearlyImplicit && collisions) {
     // physics.md 5.5: with the physical mass the projected Gauss-Seidel loop of distance chain,
     // contacts and friction does not converge in a usable number of iterations.
@@ -478,7 +480,8 @@ SolverWorkspace::SolverWorkspace(const SolverModel& model)
   SolverScratch& s = *s_;
   const std::size_t n = model.instruments.size();
   s.inst.resize(n);
-  for (std::size_t i = 0; i < n; ++i) s.inst[i].resize(model.instruments[i].rod());
+  for (std::size_t i = 0; i < n; ++i)
+    s.inst[i].resize(model.instruments[i].rod(), model.settings[0].edge_sample_spacing);
   s.coupling.resize(model.couplings.size());
   for (std::size_t c = 0; c < model.couplings.size(); ++c)
     s.coupling[c].contacts.reserve(model.instruments[model.couplings[c].inner].rod().n);
@@ -501,6 +504,10 @@ std::span<const NodeContact> SolverWorkspace::contacts(int instrument) const {
 
 std::span<const CoaxialContact> SolverWorkspace::coupling_contacts(int coupling) const {
   return s_->coupling.at(coupling).contacts;
+}
+
+std::span<const NodeContact> SolverWorkspace::edge_contacts(int instrument) const {
+  return s_->inst.at(instrument).edge_contacts;
 }
 
 double SolverWorkspace::coupling_clearance(int coupling) const {

@@ -73,15 +73,17 @@ inline Rig driven(const RodDef& def, const Sheath& sheath, const ContactMaterial
   return Rig(std::move(ims), std::move(sts));
 }
 
-// One free rod (no drive) in the shape its definition gives.
-inline Rig free_rod_rig(const RodDef& def, const ContactMaterial& contact) {
+// One free rod (no drive) in the shape its definition gives. The settings at construction size
+// the workspace (SolverSettings::edge_sample_spacing).
+inline Rig free_rod_rig(const RodDef& def, const ContactMaterial& contact,
+                        const SolverSettings& settings = {}) {
   InstrumentModel im = make_free_instrument_model(def, contact);
   InstrumentState st = make_free_instrument_state(im, def);
   std::vector<InstrumentModel> ims;
   ims.push_back(std::move(im));
   std::vector<InstrumentState> sts;
   sts.push_back(std::move(st));
-  return Rig(std::move(ims), std::move(sts));
+  return Rig(std::move(ims), std::move(sts), settings);
 }
 
 }  // namespace vcsim::test

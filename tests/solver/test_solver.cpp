@@ -562,10 +562,11 @@ TEST(Escape, AnEdgeThroughTheWallBetweenNodesInsideIsSeen) {
     RodDef d = test::free_rod(length, 2, r, 2e9);
     d.base_position = from;
     d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), dir);
-    test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.0, 0.0});
     SolverSettings s;
     s.rod.dt = 1e-4;
     s.edge_check_period = period;
+    s.edge_sample_spacing = 0.0;  // only the nodes collide: the edge stays where it is put
+    test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.0, 0.0}, s);
     StaticWall wall(mesh, tree);
     rig.step(&wall, s, std::span<const DriveCommand>(std::vector<DriveCommand>(1)));
     EXPECT_EQ(rig.ws.escape(0).node, -1) << "no node is out";
@@ -584,6 +585,53 @@ TEST(Escape, AnEdgeThroughTheWallBetweenNodesInsideIsSeen) {
   EXPECT_EQ(first_step(Vec3(0, 0.3e-3, 2e-3), Vec3::UnitZ(), 16e-3, 0.0).node, -1);
   SolverSettings bad;
   bad.edge_check_period = -1.0;
+  EXPECT_THROW(bad.validate(), InputError);
+}
+
+// The collision samples between the nodes (physics.md 6.3): the same tube bent back on itself,
+// whose inner wall is a ridge of radius 1 mm round the bend's centre (x = 3 mm, z = 20 mm), its
+// apex at z = 21 mm. A rod of three 3 mm edges lies across the bend 0.3 mm above the apex, its
+// middle edge over the ridge (nodes at x = 1.5 and 4.5 mm, over the two legs' lumens), and gravity
+// pulls it down for 0.1 s. With only the nodes colliding they fall down the legs and the middle
+// edge cuts through the ridge; with a sample at each edge's middle it comes to rest on the apex.
+TEST(Escape, AnEdgeWithASampleRestsOnARidgeItWouldCutWithout) {
+  BentTubeSpec spec;
+  spec.bend_radius = 3e-3;
+  spec.bend_angle = std::numbers::pi;
+  TriangleMesh mesh = make_bent_tube(spec);
+  check_and_repair(mesh);
+  AabbTree tree;
+  tree.build(mesh);
+  const double r = 0.2e-3, apex = spec.straight1 + spec.bend_radius - spec.radius;
+  auto fall = [&](double spacing) {
+    RodDef d = test::free_rod(9e-3, 3, r, 2e9);
+    d.base_position = Vec3(-1.5e-3, 0.3e-3, apex + 0.3e-3);
+    d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), Vec3::UnitX());
+    d.density = scaled_density(d, 1e-3);
+    SolverSettings s;
+    s.rod.dt = 1e-3;
+    s.rod.gravity = Vec3(0, 0, -20.0);
+    s.edge_check_period = 0.0;
+    s.edge_sample_spacing = spacing;
+    test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.3, 0.2}, s);
+    StaticWall wall(mesh, tree);
+    NodeEscape crossed;
+    for (int k = 0; k < 100; ++k) {
+      rig.step(&wall, std::span<const DriveCommand>(std::vector<DriveCommand>(1)));
+      EXPECT_EQ(rig.ws.escape(0).node, -1) << "no node is out";
+      if (crossed.node < 0) crossed = rig.ws.edge_escape(0);
+    }
+    return std::make_pair(crossed, Vec3(0.5 * (rig.rod().x[1] + rig.rod().x[2])));
+  };
+  const auto [cut, cut_middle] = fall(0.0);
+  EXPECT_EQ(cut.node, 1) << "without samples the middle edge goes through the ridge";
+  EXPECT_LT(cut_middle.z(), apex - 2e-3);
+  const auto [held, middle] = fall(2e-3);  // one sample in each edge, at its middle
+  EXPECT_EQ(held.node, -1) << "no edge through the wall";
+  EXPECT_NEAR(middle.z(), apex + r, 0.1e-3) << "resting on the apex";
+  EXPECT_NEAR(middle.x(), spec.bend_radius, 0.2e-3);
+  SolverSettings bad;
+  bad.edge_sample_spacing = -1.0;
   EXPECT_THROW(bad.validate(), InputError);
 }
 
