@@ -542,6 +542,22 @@ TEST(Escape, ANodeSpedUpByItsChainDoesNotCrossTheWallUnseen) {
 // slide further than its gap and the margin is queried where it will arrive, and the cap there
 // becomes its second contact: no node ever lies more than its radius beyond the cap (physics.md
 // 6.3).
+// A tube (radius 2 mm) bent back on itself round a 3 mm bend: its legs 6 mm apart with 2 mm of
+// wall between them, a ridge like the carina between the iliacs. Not moved once built (a wall
+// points into it).
+struct UTube {
+  BentTubeSpec spec;
+  TriangleMesh mesh;
+  AabbTree tree;
+  UTube() {
+    spec.bend_radius = 3e-3;
+    spec.bend_angle = std::numbers::pi;
+    mesh = make_bent_tube(spec);
+    check_and_repair(mesh);
+    tree.build(mesh);
+  }
+};
+
 // An edge through the wall with both its nodes inside (physics.md 6.3): a tube (radius 2 mm)
 // bent back on itself round a 3 mm bend, its two legs 6 mm apart with 2 mm of wall between them
 // (a ridge, as the carina between the iliacs), and a free rod of two 3.2 mm edges laid straight
@@ -550,13 +566,7 @@ TEST(Escape, ANodeSpedUpByItsChainDoesNotCrossTheWallUnseen) {
 // (x = 3 mm) 1.015 mm behind both walls, and reports it apart from the nodes' escapes. The check
 // runs every edge_check_period of simulated time: not in a first step of 0.1 ms at 50 ms.
 TEST(Escape, AnEdgeThroughTheWallBetweenNodesInsideIsSeen) {
-  BentTubeSpec spec;
-  spec.bend_radius = 3e-3;
-  spec.bend_angle = std::numbers::pi;
-  TriangleMesh mesh = make_bent_tube(spec);
-  check_and_repair(mesh);
-  AabbTree tree;
-  tree.build(mesh);
+  const UTube u;
   const double r = 0.2e-3;
   auto first_step = [&](const Vec3& from, const Vec3& dir, double length, double period) {
     RodDef d = test::free_rod(length, 2, r, 2e9);
@@ -567,7 +577,7 @@ TEST(Escape, AnEdgeThroughTheWallBetweenNodesInsideIsSeen) {
     s.edge_check_period = period;
     s.edge_sample_spacing = 0.0;  // only the nodes collide: the edge stays where it is put
     test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.0, 0.0}, s);
-    StaticWall wall(mesh, tree);
+    StaticWall wall(u.mesh, u.tree);
     rig.step(&wall, s, std::span<const DriveCommand>(std::vector<DriveCommand>(1)));
     EXPECT_EQ(rig.ws.escape(0).node, -1) << "no node is out";
     return rig.ws.edge_escape(0);
@@ -595,13 +605,8 @@ TEST(Escape, AnEdgeThroughTheWallBetweenNodesInsideIsSeen) {
 // pulls it down for 0.1 s. With only the nodes colliding they fall down the legs and the middle
 // edge cuts through the ridge; with a sample at each edge's middle it comes to rest on the apex.
 TEST(Escape, AnEdgeWithASampleRestsOnARidgeItWouldCutWithout) {
-  BentTubeSpec spec;
-  spec.bend_radius = 3e-3;
-  spec.bend_angle = std::numbers::pi;
-  TriangleMesh mesh = make_bent_tube(spec);
-  check_and_repair(mesh);
-  AabbTree tree;
-  tree.build(mesh);
+  const UTube u;
+  const BentTubeSpec& spec = u.spec;
   const double r = 0.2e-3, apex = spec.straight1 + spec.bend_radius - spec.radius;
   auto fall = [&](double spacing) {
     RodDef d = test::free_rod(9e-3, 3, r, 2e9);
@@ -614,7 +619,7 @@ TEST(Escape, AnEdgeWithASampleRestsOnARidgeItWouldCutWithout) {
     s.edge_check_period = 0.0;
     s.edge_sample_spacing = spacing;
     test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.3, 0.2}, s);
-    StaticWall wall(mesh, tree);
+    StaticWall wall(u.mesh, u.tree);
     NodeEscape crossed;
     for (int k = 0; k < 100; ++k) {
       rig.step(&wall, std::span<const DriveCommand>(std::vector<DriveCommand>(1)));
