@@ -515,8 +515,10 @@ double SolverWorkspace::coupling_clearance(int coupling) const {
 }
 
 void SolverWorkspace::clear_caches() {
-  for (internal::InstrumentScratch& in : s_->inst)
+  for (internal::InstrumentScratch& in : s_->inst) {
     for (LeafCache& c : in.leaf_cache) c.clear();
+    for (LeafCache& c : in.sample_cache) c.clear();
+  }
 }
 
 bool SolverWorkspace::sheathed(int instrument, int node) const {
