@@ -549,7 +549,8 @@ struct UTube {
   BentTubeSpec spec;
   TriangleMesh mesh;
   AabbTree tree;
-  UTube() {
+  explicit UTube(int sides = 32) {
+    spec.sides = sides;
     spec.bend_radius = 3e-3;
     spec.bend_angle = std::numbers::pi;
     mesh = make_bent_tube(spec);
@@ -638,6 +639,39 @@ TEST(Escape, AnEdgeWithASampleRestsOnARidgeItWouldCutWithout) {
   SolverSettings bad;
   bad.edge_sample_spacing = -1.0;
   EXPECT_THROW(bad.validate(), InputError);
+}
+
+// SolverWorkspace::clear_caches (a lumen rebuilt, as when a lesion opens) forgets the collision
+// samples' leaf caches as well as the nodes': the rod of the test above resting on the ridge by
+// its samples, then the tube remeshed (24 sides for 32), steps the same as a fresh workspace from
+// the same state. Keeping the old tree's leaves, a sample meets the wrong triangles.
+TEST(Escape, ClearCachesForgetsTheSamplesLeavesToo) {
+  const UTube before(32), after(24);
+  const double r = 0.2e-3,
+               apex = before.spec.straight1 + before.spec.bend_radius - before.spec.radius;
+  RodDef d = test::free_rod(9e-3, 3, r, 2e9);
+  d.base_position = Vec3(-1.5e-3, 0.3e-3, apex + 0.3e-3);
+  d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), Vec3::UnitX());
+  d.density = scaled_density(d, 1e-3);
+  SolverSettings s;
+  s.rod.dt = 1e-3;
+  s.rod.gravity = Vec3(0, 0, -20.0);
+  s.edge_sample_spacing = 2e-3;
+  const std::vector<DriveCommand> still(1);
+  test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.3, 0.2}, s);
+  StaticWall first(before.mesh, before.tree), second(after.mesh, after.tree);
+  for (int k = 0; k < 100; ++k) rig.step(&first, still);
+  ASSERT_FALSE(rig.ws.edge_contacts(0).empty()) << "resting on its samples";
+  const SolverState rested = rig.state;
+  rig.ws.clear_caches();
+  test::Rig fresh = test::free_rod_rig(d, ContactMaterial{0.3, 0.2}, s);
+  fresh.state = rested;
+  for (int k = 0; k < 20; ++k) {
+    rig.step(&second, still);
+    fresh.step(&second, still);
+  }
+  EXPECT_FALSE(fresh.ws.edge_contacts(0).empty()) << "still resting on the remeshed ridge";
+  EXPECT_EQ(rig.state.hash(), fresh.state.hash());
 }
 
 TEST(Escape, ANodeSlidingAlongOneWallDoesNotCrossAnotherUnseen) {
