@@ -599,6 +599,22 @@ TEST(Escape, AnEdgeThroughTheWallBetweenNodesInsideIsSeen) {
   EXPECT_THROW(bad.validate(), InputError);
 }
 
+// The ridge tests' rod: three 3 mm edges of radius 0.2 mm laid across the U-tube's bend 0.3 mm
+// above the ridge's apex (`apex`), its middle edge over the ridge, mass-scaled for a 1 ms step,
+// gravity 20 m/s^2 toward the ridge; samples `spacing` apart (0: none), edges checked every step.
+test::Rig rod_over_the_ridge(double apex, double spacing) {
+  RodDef d = test::free_rod(9e-3, 3, 0.2e-3, 2e9);
+  d.base_position = Vec3(-1.5e-3, 0.3e-3, apex + 0.3e-3);
+  d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), Vec3::UnitX());
+  d.density = scaled_density(d, 1e-3);
+  SolverSettings s;
+  s.rod.dt = 1e-3;
+  s.rod.gravity = Vec3(0, 0, -20.0);
+  s.edge_check_period = 0.0;
+  s.edge_sample_spacing = spacing;
+  return test::free_rod_rig(d, ContactMaterial{0.3, 0.2}, s);
+}
+
 // The collision samples between the nodes (physics.md 6.3): the same tube bent back on itself,
 // whose inner wall is a ridge of radius 1 mm round the bend's centre (x = 3 mm, z = 20 mm), its
 // apex at z = 21 mm. A rod of three 3 mm edges lies across the bend 0.3 mm above the apex, its
@@ -610,16 +626,7 @@ TEST(Escape, AnEdgeWithASampleRestsOnARidgeItWouldCutWithout) {
   const BentTubeSpec& spec = u.spec;
   const double r = 0.2e-3, apex = spec.straight1 + spec.bend_radius - spec.radius;
   auto fall = [&](double spacing) {
-    RodDef d = test::free_rod(9e-3, 3, r, 2e9);
-    d.base_position = Vec3(-1.5e-3, 0.3e-3, apex + 0.3e-3);
-    d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), Vec3::UnitX());
-    d.density = scaled_density(d, 1e-3);
-    SolverSettings s;
-    s.rod.dt = 1e-3;
-    s.rod.gravity = Vec3(0, 0, -20.0);
-    s.edge_check_period = 0.0;
-    s.edge_sample_spacing = spacing;
-    test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.3, 0.2}, s);
+    test::Rig rig = rod_over_the_ridge(apex, spacing);
     StaticWall wall(u.mesh, u.tree);
     NodeEscape crossed;
     for (int k = 0; k < 100; ++k) {
@@ -647,24 +654,15 @@ TEST(Escape, AnEdgeWithASampleRestsOnARidgeItWouldCutWithout) {
 // the same state. Keeping the old tree's leaves, a sample meets the wrong triangles.
 TEST(Escape, ClearCachesForgetsTheSamplesLeavesToo) {
   const UTube before(32), after(24);
-  const double r = 0.2e-3,
-               apex = before.spec.straight1 + before.spec.bend_radius - before.spec.radius;
-  RodDef d = test::free_rod(9e-3, 3, r, 2e9);
-  d.base_position = Vec3(-1.5e-3, 0.3e-3, apex + 0.3e-3);
-  d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), Vec3::UnitX());
-  d.density = scaled_density(d, 1e-3);
-  SolverSettings s;
-  s.rod.dt = 1e-3;
-  s.rod.gravity = Vec3(0, 0, -20.0);
-  s.edge_sample_spacing = 2e-3;
+  const double apex = before.spec.straight1 + before.spec.bend_radius - before.spec.radius;
   const std::vector<DriveCommand> still(1);
-  test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.3, 0.2}, s);
+  test::Rig rig = rod_over_the_ridge(apex, 2e-3);
   StaticWall first(before.mesh, before.tree), second(after.mesh, after.tree);
   for (int k = 0; k < 100; ++k) rig.step(&first, still);
   ASSERT_FALSE(rig.ws.edge_contacts(0).empty()) << "resting on its samples";
   const SolverState rested = rig.state;
   rig.ws.clear_caches();
-  test::Rig fresh = test::free_rod_rig(d, ContactMaterial{0.3, 0.2}, s);
+  test::Rig fresh = rod_over_the_ridge(apex, 2e-3);
   fresh.state = rested;
   for (int k = 0; k < 20; ++k) {
     rig.step(&second, still);
