@@ -1048,6 +1048,10 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
         rod_distance_iteration(in.model(), rs, in.rod(), in.ws());
       const double b = tick();
       solve_contacts(in, set);
+      // An edge's contact and its nodes' own meet at a ridge from two sides (the carina between
+      // the iliacs): one sweep, nodes first, leaves a node pushed back into its wall by the
+      // edge's impulse. A second sweep brings them to agree (physics.md 6).
+      if (!in.w->edge_contacts.empty()) solve_contacts(in, set);
       in.w->stage_us = {b - a, tick() - b, 0.0};
     });
     const double b = tick();
