@@ -391,6 +391,25 @@ void add_hold_contacts(const Inst& in, const SolverSettings& set) {
   }
 }
 
+// An edge contact's point, (1 - along) x[node] + along x[node + 1]: its velocity and inverse
+// mass from its two nodes' in those weights, and an impulse on it shared in the same weights.
+struct EdgePoint {
+  EdgePoint(const NodeContact& c, const std::vector<double>& inv_mass)
+      : i(c.node),
+        u(1.0 - c.along),
+        t(c.along),
+        wi(u * inv_mass[i]),
+        wj(t * inv_mass[i + 1]),
+        w(u * wi + t * wj) {}
+  Vec3 velocity(const std::vector<Vec3>& vel) const { return u * vel[i] + t * vel[i + 1]; }
+  void apply(const Vec3& impulse, std::vector<Vec3>& vel) const {
+    vel[i] += wi * impulse;
+    vel[i + 1] += wj * impulse;
+  }
+  int i;
+  double u, t, wi, wj, w;
+};
+
 // One projected Gauss-Seidel sweep over the contacts: non-penetration (a velocity that closes a
 // speculative gap exactly, or removes a fraction of a penetration), then the friction impulse
 // clamped to the Coulomb cone (static cone; beyond it, sliding at mu_dynamic).
@@ -420,29 +439,20 @@ void solve_contacts(const Inst& in, const SolverSettings& set, std::size_t first
     c.lambda_t = lt;
   }
   if (first > 0) return;
-  // The edges' contacts: the point's velocity and inverse mass from its two nodes' (weights
-  // 1 - along and along), an impulse on it shared in the same weights.
   for (NodeContact& c : in.w->edge_contacts) {
-    const int i = c.node;
-    const double u = 1.0 - c.along, t = c.along;
-    const double wi = u * inv_mass[i], wj = t * inv_mass[i + 1];
-    const double w = u * wi + t * wj;
-    if (w <= 0.0) continue;
+    const EdgePoint p(c, inv_mass);
+    if (p.w <= 0.0) continue;
     const double target = c.depth > 0.0 ? beta * c.depth / dt : c.depth / dt;
-    const double vn = (u * vel[i] + t * vel[i + 1] - c.wall_velocity).dot(c.normal);
-    const double ln = std::max(0.0, c.lambda_n + (target - vn) / w);
-    const Vec3 dn = (ln - c.lambda_n) * c.normal;
-    vel[i] += wi * dn;
-    vel[i + 1] += wj * dn;
+    const double vn = (p.velocity(vel) - c.wall_velocity).dot(c.normal);
+    const double ln = std::max(0.0, c.lambda_n + (target - vn) / p.w);
+    p.apply((ln - c.lambda_n) * c.normal, vel);
     c.lambda_n = ln;
-    const Vec3 vr = u * vel[i] + t * vel[i + 1] - c.wall_velocity;
+    const Vec3 vr = p.velocity(vel) - c.wall_velocity;
     const Vec3 vt = vr - vr.dot(c.normal) * c.normal;
-    Vec3 lt = c.lambda_t - vt / w;
+    Vec3 lt = c.lambda_t - vt / p.w;
     const double lt_norm = lt.norm();
     if (lt_norm > mu_s * ln) lt *= (mu_d * ln) / lt_norm;
-    const Vec3 d_lt = lt - c.lambda_t;
-    vel[i] += wi * d_lt;
-    vel[i + 1] += wj * d_lt;
+    p.apply(lt - c.lambda_t, vel);
     c.lambda_t = lt;
   }
 }
@@ -467,17 +477,14 @@ void remove_contact_bias(const Inst& in, const SolverSettings& set) {
   std::vector<Vec3>& vel = in.rod().v;
   for (NodeContact& c : in.w->edge_contacts) {
     if (c.depth <= 0.0) continue;
-    const int i = c.node;
-    const double u = 1.0 - c.along, t = c.along;
-    const double wi = u * inv_mass[i], wj = t * inv_mass[i + 1];
-    const double w = u * wi + t * wj;
-    if (w <= 0.0) continue;
-    const double vn = (u * vel[i] + t * vel[i + 1] - c.wall_velocity).dot(c.normal);
+    const EdgePoint p(c, inv_mass);
+    if (p.w <= 0.0) continue;
+    const double vn = (p.velocity(vel) - c.wall_velocity).dot(c.normal);
     if (vn <= 0.0) continue;
     const double removed = std::min(vn, set.penetration_correction * c.depth / dt);
-    const double l = removed / w;
-    vel[i] -= (wi * l) * c.normal;
-    vel[i + 1] -= (wj * l) * c.normal;
+    const double l = removed / p.w;
+    vel[p.i] -= (p.wi * l) * c.normal;
+    vel[p.i + 1] -= (p.wj * l) * c.normal;
     c.lambda_bias = l;
   }
 }
