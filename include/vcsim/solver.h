@@ -163,9 +163,10 @@ struct SolverSettings {
   // gets evenly spaced points no farther apart, queried against the wall as spheres of the rod's
   // radius; where one comes nearer the wall than the edge's nodes (a ridge such as a carina, the
   // inner side of a bend), it gets a contact shared by the two nodes. 0: only the nodes collide.
-  // The first split's value sizes the workspace. 6 mm reaches only long shaft edges: at 2-4 mm
-  // the autopilot no longer steers a wire into the phantom's or the arch's branch (physics.md).
-  double edge_sample_spacing = 6e-3;
+  // The first split's value sizes the workspace. At 3 mm a 0.014" wire's 10.5 mm shaft edges get
+  // three samples, which keeps them off the carina's sharp apex; at 2 mm the phantom's autopilot
+  // no longer steers its wire into the branch (physics.md 6.3).
+  double edge_sample_spacing = 3e-3;
   double contact_margin = 2e-4;         // m, speculative: contacts within this gap are solved
   double penetration_correction = 0.5;  // fraction of a penetration removed per step
   double coherence_margin = 0.6e-3;     // m, query radius beyond contact reach (for skipping)
