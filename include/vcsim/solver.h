@@ -271,8 +271,14 @@ struct InstrumentState {
   std::vector<Vec3> query_centre;  // (n)
   std::vector<double> clearance;   // (n)
   std::vector<double> travel_at;   // (n) m, or -1
-  double wall_travel = 0.0;        // m
-  BalloonHold hold;                // (sized n when a balloon is inflated)
+  // The same for the collision samples between the nodes (InstrumentScratch::sample_edge), sized
+  // by the step that first meets them (their count comes from the settings, not the model; a
+  // state of another size is taken as unknown and queried again).
+  std::vector<Vec3> sample_centre;       // (samples)
+  std::vector<double> sample_clearance;  // (samples)
+  std::vector<double> sample_travel_at;  // (samples) m, or -1
+  double wall_travel = 0.0;              // m
+  BalloonHold hold;                      // (sized n when a balloon is inflated)
 };
 
 // A driven instrument lying straight on the sheath axis with `depth` (m) inserted and the hand
@@ -310,7 +316,8 @@ struct StepProfile {
          distance = 0, contacts = 0, integrate_positions = 0, total = 0;
   double wall = 0, coupling = 0, feedback = 0;
   int num_contacts = 0;
-  int num_queries = 0;
+  int num_queries = 0;         // the nodes' wall queries
+  int num_sample_queries = 0;  // the collision samples' (physics.md 6.3)
 };
 
 // What a step did besides moving the instruments.

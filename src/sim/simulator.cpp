@@ -160,7 +160,8 @@ std::size_t SimState::bytes() const {
     const RodState& r = in.rod;
     b += sizeof(InstrumentState) + bytes_of(r.x) + bytes_of(r.v) + bytes_of(r.q) +
          bytes_of(r.omega) + bytes_of(r.f_ext) + bytes_of(r.tau_ext) + bytes_of(in.query_centre) +
-         bytes_of(in.clearance) + bytes_of(in.travel_at);
+         bytes_of(in.clearance) + bytes_of(in.travel_at) + bytes_of(in.sample_centre) +
+         bytes_of(in.sample_clearance) + bytes_of(in.sample_travel_at);
   }
   b += bytes_of(contrast.concentration) + bytes_of(contrast.arrival) + bytes_of(contrast.history);
   const SimMetrics& m = metrics;
@@ -571,6 +572,7 @@ void Simulator::step(const StepCommands& cmds) {
   a.feedback += b.feedback;
   a.num_contacts += b.num_contacts;
   a.num_queries += b.num_queries;
+  a.num_sample_queries += b.num_sample_queries;
 }
 
 void Simulator::restore(const SimState& snap) {

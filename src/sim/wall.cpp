@@ -297,8 +297,10 @@ void sync_wall(const SimModel& md, SimState& st, SimScratch& sc, double t1) {
     tube.reach = 0.5 * (hi - lo).norm() + *std::max_element(tube.radius.begin(), tube.radius.end());
   }
   if (changed) {
-    for (InstrumentState& in : st.solver.instruments)
+    for (InstrumentState& in : st.solver.instruments) {
       std::fill(in.clearance.begin(), in.clearance.end(), 0.0);
+      std::fill(in.sample_clearance.begin(), in.sample_clearance.end(), 0.0);
+    }
     sc.solver.clear_caches();
   }
 }

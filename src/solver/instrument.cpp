@@ -303,21 +303,34 @@ constexpr double kSampleNearer = 0.05;
 // otherwise, and an edge of a long shaft (9-13 mm in the soak's iliacs) can pass a ridge of the
 // wall between them: the carina between two branches, the inner side of a bend. Each sample of an
 // edge between two free nodes is queried as a sphere of the rod's radius (with its own leaf
-// cache) unless the nodes' gaps (InstrumentScratch::gap) keep the wall beyond its reach. A sample
-// nearer the wall than the nodes' distances interpolated to it, or behind the wall, gets a contact
-// at its point; along a flat or hollow wall (a vessel's straight or outer side) it is not nearer,
-// and the nodes' own contacts hold the edge.
-void detect_edge_contacts(const Inst& in, VesselWall& wall, const SolverSettings& set) {
+// cache) unless the nodes' gaps (InstrumentScratch::gap) keep the wall beyond its reach, or its
+// own clearance does: like a node's, a sample is queried coherence_margin wider than its reach
+// and skipped until it (or the wall) has moved far enough to close what that query found free.
+// The nodes' gaps alone bound the wall only near them (a gap less the distance along the edge),
+// which leaves the middle of a 10 mm edge queried every step. A sample nearer the wall than the
+// nodes' distances interpolated to it, or behind the wall, gets a contact at its point; along a
+// flat or hollow wall (a vessel's straight or outer side) it is not nearer, and the nodes' own
+// contacts hold the edge.
+void detect_edge_contacts(const Inst& in, VesselWall& wall, const SolverSettings& set,
+                          StepProfile* prof) {
   InstrumentScratch& w = *in.w;
   w.edge_contacts.clear();
-  if (w.sample_edge.empty()) return;
+  const std::size_t ns = w.sample_edge.size();
+  if (ns == 0) return;
   const RodModel& md = in.model();
   const RodState& st = in.rod();
+  InstrumentState& s = *in.st;
+  if (s.sample_clearance.size() != ns || s.sample_centre.size() != ns ||
+      s.sample_travel_at.size() != ns) {  // first met, or another spacing: unknown, query all
+    s.sample_centre.assign(ns, Vec3::Zero());
+    s.sample_clearance.assign(ns, 0.0);
+    s.sample_travel_at.assign(ns, 0.0);
+  }
   const double dt = set.rod.dt;
   const double wall_step = wall.speed_bound() * dt;
   const int first = in.driven() ? in.drive().first_free : 0;
   int nq = 0;
-  for (std::size_t k = 0; k < w.sample_edge.size(); ++k) {
+  for (std::size_t k = 0; k < ns; ++k) {
     const int i = w.sample_edge[k];
     if (i < first || w.gap[i] < 0.0 || w.gap[i + 1] < 0.0) continue;
     const double t = w.sample_along[k];
@@ -329,24 +342,50 @@ void detect_edge_contacts(const Inst& in, VesselWall& wall, const SolverSettings
         r + set.contact_margin + ((1.0 - t) * st.v[i] + t * st.v[i + 1]).norm() * dt + wall_step;
     // The sample lies t len from node i and (1 - t) len from node i + 1.
     if (std::max(w.gap[i] - t * len, w.gap[i + 1] - (1.0 - t) * len) > reach) continue;
+    const Vec3 p = a + t * (b - a);
+    if (s.sample_clearance[k] > 0.0) {
+      const double travel =
+          s.sample_travel_at[k] < 0.0 ? 0.0 : s.wall_travel - s.sample_travel_at[k];
+      if ((p - s.sample_centre[k]).norm() + travel + reach < s.sample_clearance[k]) continue;
+    }
+    // A sample that touched the wall last step is queried again next step anyway.
+    const bool was_touching = s.sample_clearance[k] == 0.0 && st.steps > 0;
     w.sample_query[nq] = static_cast<int>(k);
-    w.sample_points[nq] = a + t * (b - a);
-    w.sample_radii[nq] = reach;
+    w.sample_points[nq] = p;
+    w.sample_radii[nq] = reach + (was_touching ? 0.0 : set.coherence_margin);
+    w.sample_reach[nq] = reach;
     w.sample_caches[nq] = &w.sample_cache[k];
     ++nq;
   }
   if (nq == 0) return;
+  if (prof) prof->num_sample_queries += nq;
   wall.query_spheres(std::span<const Vec3>(w.sample_points.data(), nq),
                      std::span<const double>(w.sample_radii.data(), nq),
                      std::span<LeafCache* const>(w.sample_caches.data(), nq), set.leaf_cache_slack,
                      std::span<SphereContact>(w.sample_hits.data(), nq));
+  const bool moving = wall.speed_bound() > 0.0;
   for (int q = 0; q < nq; ++q) {
     const SphereContact& h = w.sample_hits[q];
-    if (!h.touching) continue;
     const auto k = static_cast<std::size_t>(w.sample_query[q]);
     const int i = w.sample_edge[k];
     const double t = w.sample_along[k];
     const double r = (1.0 - t) * node_radius(md, i) + t * node_radius(md, i + 1);
+    const double reach = w.sample_reach[q];
+    s.sample_centre[k] = w.sample_points[q];
+    auto mark = [&](double clearance) {
+      s.sample_clearance[k] = clearance;
+      s.sample_travel_at[k] =
+          moving && wall.moves_near(w.sample_points[q], clearance) ? s.wall_travel : -1.0;
+    };
+    if (!h.touching) {
+      mark(w.sample_radii[q]);
+      continue;
+    }
+    if (!h.centre_outside && h.distance >= reach) {
+      mark(h.distance);  // near, but not within reach this step
+      continue;
+    }
+    s.sample_clearance[k] = 0.0;  // within reach: query again next step
     if (!h.centre_outside) {
       const double between = (1.0 - t) * w.gap[i] + t * w.gap[i + 1];
       if (h.distance > between - kSampleNearer * r) continue;
@@ -861,6 +900,7 @@ void InstrumentScratch::resize(const RodModel& md, double sample_spacing) {
   sample_query.assign(ns, 0);
   sample_points.assign(ns, Vec3::Zero());
   sample_radii.assign(ns, 0.0);
+  sample_reach.assign(ns, 0.0);
   sample_cache.assign(ns, LeafCache{});
   sample_caches.assign(ns, nullptr);
   sample_hits.assign(ns, SphereContact{});
@@ -1033,7 +1073,7 @@ void fine_step(std::span<Inst> insts, std::span<const Pair> couplings, VesselWal
     if (in.parked()) continue;
     if (collide) {
       detect_contacts(in, *wall, exits, set, &p);
-      detect_edge_contacts(in, *wall, set);
+      detect_edge_contacts(in, *wall, set, &p);
       add_access_end_contacts(in, exits, set);
     } else {
       in.w->contacts.clear();

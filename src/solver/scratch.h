@@ -35,6 +35,7 @@ struct InstrumentScratch {
   std::vector<int> sample_query;  // (samples) the samples queried this step
   std::vector<Vec3> sample_points;
   std::vector<double> sample_radii;
+  std::vector<double> sample_reach;  // the queried samples' contact reach (m, radius less margin)
   std::vector<LeafCache> sample_cache;  // a pure cache, as leaf_cache
   std::vector<LeafCache*> sample_caches;
   std::vector<SphereContact> sample_hits;

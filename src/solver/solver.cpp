@@ -37,6 +37,7 @@ void add(StepProfile& to, const StepProfile& p) {
   to.feedback += p.feedback;
   to.num_contacts = p.num_contacts;  // the last fine step's
   to.num_queries += p.num_queries;
+  to.num_sample_queries += p.num_sample_queries;
 }
 
 void hash_settings(StateHasher& h, const SolverSettings& s) {
@@ -453,6 +454,9 @@ void SolverState::hash_into(StateHasher& h) const {
     h.add(in.query_centre);
     h.add(in.clearance);
     h.add(in.travel_at);
+    h.add(in.sample_centre);
+    h.add(in.sample_clearance);
+    h.add(in.sample_travel_at);
     h.add_value(in.wall_travel);
     const BalloonHold& b = in.hold;
     h.add_value(b.first);

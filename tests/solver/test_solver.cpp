@@ -648,6 +648,54 @@ TEST(Escape, AnEdgeWithASampleRestsOnARidgeItWouldCutWithout) {
   EXPECT_THROW(bad.validate(), InputError);
 }
 
+// A collision sample's own clearance (physics.md 6.3): like a node, a sample in the open lumen
+// is queried coherence_margin wider than its reach and then skipped until it has moved that far;
+// the nodes' gaps alone would have it queried every step in the middle of a long edge. A rod of
+// three 2.6 mm edges (nodes at x = -0.9, 1.7, 4.3 and 6.9 mm, over the U-tube's legs, a sample at
+// each edge's middle) lies 1.5 mm above the ridge's apex and falls at 50 mm/s: the middle edge's
+// sample is what meets the ridge. It is queried on a few of the 20 steps before it nears the
+// ridge, and the rod comes to rest on the apex as when the samples are queried every step (no
+// coherence margin).
+TEST(Escape, ASampleIsSkippedInTheOpenLumenAndStillMeetsTheRidge) {
+  const UTube u;
+  const BentTubeSpec& spec = u.spec;
+  const double r = 0.2e-3, apex = spec.straight1 + spec.bend_radius - spec.radius;
+  auto fall = [&](double margin) {
+    RodDef d = test::free_rod(7.8e-3, 3, r, 2e9);
+    d.base_position = Vec3(-0.9e-3, 0.3e-3, apex + r + 1.5e-3);
+    d.base_orientation = Quat::FromTwoVectors(Vec3::UnitZ(), Vec3::UnitX());
+    d.density = scaled_density(d, 1e-3);
+    SolverSettings s;
+    s.rod.dt = 1e-3;
+    s.edge_check_period = 0.0;
+    s.edge_sample_spacing = 2e-3;
+    s.coherence_margin = margin;
+    test::Rig rig = test::free_rod_rig(d, ContactMaterial{0.3, 0.2}, s);
+    for (Vec3& v : rig.rod().v) v = Vec3(0, 0, -0.05);
+    StaticWall wall(u.mesh, u.tree);
+    int early = 0;  // the middle sample's queries in the first 20 steps (1 mm of fall)
+    bool crossed = false;
+    for (int k = 0; k < 100; ++k) {
+      StepProfile prof;
+      rig.step(&wall, std::span<const DriveCommand>(std::vector<DriveCommand>(1)), &prof);
+      if (k < 20) early += prof.num_sample_queries;
+      EXPECT_EQ(rig.ws.escape(0).node, -1) << "no node is out";
+      crossed = crossed || rig.ws.edge_escape(0).node >= 0;
+    }
+    EXPECT_FALSE(crossed) << "no edge through the wall";
+    EXPECT_FALSE(rig.ws.edge_contacts(0).empty()) << "held by its sample";
+    return std::make_pair(early, Vec3(0.5 * (rig.rod().x[1] + rig.rod().x[2])));
+  };
+  const auto [every, every_middle] = fall(0.0);
+  const auto [skipped, middle] = fall(SolverSettings{}.coherence_margin);
+  EXPECT_EQ(every, 3 * 20) << "without a margin each sample is queried every step";
+  EXPECT_LE(skipped, 3 * 4);
+  EXPECT_GE(skipped, 3);
+  EXPECT_NEAR(middle.z(), apex + r, 0.1e-3) << "resting on the apex";
+  EXPECT_NEAR(middle.z(), every_middle.z(), 0.02e-3);
+  EXPECT_NEAR(middle.x(), spec.bend_radius, 0.2e-3);
+}
+
 // SolverWorkspace::clear_caches (a lumen rebuilt, as when a lesion opens) forgets the collision
 // samples' leaf caches as well as the nodes': the rod of the test above resting on the ridge by
 // its samples, then the tube remeshed (24 sides for 32), steps the same as a fresh workspace from
